@@ -1,0 +1,59 @@
+"""What every `piest` command shares: errors, output folders, common options."""
+
+import argparse
+
+
+class CLIError(Exception):
+    """A problem with the user's request: printed as one line, exit code 2."""
+
+
+def add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
+    p.add_argument(
+        "--out",
+        default=default_out,
+        metavar="DIR",
+        help=f"folder for the results (default: {default_out}); created if missing",
+    )
+    p.add_argument("--force", action="store_true", help="overwrite results already in --out")
+    p.add_argument(
+        "--quiet", action="store_true", help="no progress bars; print only the paths written"
+    )
+
+
+def positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {v}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return v
+
+
+def float_list(text: str) -> list[float]:
+    try:
+        vals = [float(s) for s in text.replace(" ", "").split(",") if s]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers such as 0,1.5,3, got {text!r}"
+        ) from None
+    if not vals:
+        raise argparse.ArgumentTypeError("expected at least one number")
+    if any(v != v or v in (float("inf"), float("-inf")) for v in vals):
+        raise argparse.ArgumentTypeError(f"NaN or inf in {text!r}")
+    return vals
+
+
+def report_written(paths, quiet: bool) -> None:
+    for p in paths:
+        print(p)

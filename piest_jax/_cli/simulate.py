@@ -1,0 +1,152 @@
+"""`piest simulate`: run a PI operator on a described input and write a CSV and a loop plot."""
+
+import numpy as np
+
+from .. import _io, _signals
+from .._data import load_record
+from .._pi import PIOperator
+from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+
+NAME = "simulate"
+HELP = "run a PI operator on a sine, multi-sine, triangle, chirp or a CSV's u"
+DESCRIPTION = """\
+Run a Prandtl-Ishlinskii operator y = sum_j w_j H_{r_j}[u] on an input and write
+  DIR/simulate.csv   columns t, u, y and the play outputs x_1..x_n
+  DIR/loop.png       the y-u loop and the play outputs over time
+  DIR/simulate.json  the operator, the input description and summary numbers
+The defaults are the paper's Fig. 5 setting: u = 10 sin(2 pi 5 t), t in [0, 1] s, dt = 1 ms,
+thresholds (0, 10/3, 20/3), weights (1, 3, 5).
+
+example:  piest simulate --input triangle --amplitude 5 --thresholds 0,1,2,3 --out sim"""
+
+OUTPUTS = ("simulate.csv", "loop.png", "simulate.json")
+
+
+def add_arguments(p):
+    p.add_argument(
+        "--input",
+        choices=["sine", "multisine", "triangle", "chirp", "csv"],
+        default="sine",
+        help="input shape (default: sine); 'csv' takes t and u from --csv",
+    )
+    p.add_argument("--csv", metavar="FILE", help="data file whose t and u columns are the input")
+    p.add_argument(
+        "--amplitude", type=float_list, default=[10.0], help="amplitude(s); several for multisine"
+    )
+    p.add_argument(
+        "--frequency", type=float_list, default=[5.0], help="frequency/ies in Hz (default 5)"
+    )
+    p.add_argument("--offset", type=float, default=0.0, help="constant added to the input")
+    p.add_argument("--duration", type=positive_float, default=1.0, help="seconds (default 1)")
+    p.add_argument("--dt", type=positive_float, default=1e-3, help="sampling step (default 1e-3)")
+    p.add_argument(
+        "--thresholds",
+        type=float_list,
+        default=None,
+        help="comma-separated thresholds, increasing from 0 (default 0,3.3333,6.6667)",
+    )
+    p.add_argument(
+        "--plays", type=positive_int, help="instead of --thresholds: N thresholds uniform on [0, r_max)"
+    )
+    p.add_argument("--r-max", type=positive_float, help="largest threshold scale with --plays")
+    p.add_argument("--weights", type=float_list, help="comma-separated weights (default 1,3,5)")
+    p.add_argument(
+        "--initial-states",
+        type=float_list,
+        default=[0.0],
+        help="the plays' initial states: one value for all, or one per play (default 0)",
+    )
+    add_output_options(p, "piest-simulate")
+
+
+def _input(args):
+    if args.input == "csv":
+        if not args.csv:
+            raise CLIError("--input csv needs --csv FILE")
+        rec = load_record(args.csv)
+        return rec.t, rec.u, {"kind": "csv", "file": str(args.csv)}
+    if args.csv:
+        raise CLIError(f"--csv is only used with --input csv, not --input {args.input}")
+    t = np.asarray(_signals.time_grid(args.duration, args.dt))
+    a, f = args.amplitude, args.frequency
+    if args.input == "multisine":
+        if len(a) != len(f):
+            raise CLIError(f"multisine: {len(a)} amplitudes but {len(f)} frequencies")
+        u = _signals.multisine(t, a, f, offset=args.offset)
+    else:
+        if len(a) != 1 or len(f) != 1:
+            raise CLIError(f"--input {args.input} takes one amplitude and one frequency")
+        if args.input == "chirp":
+            u = _signals.chirp(t, a[0], f0=f[0] / 10, f1=f[0], offset=args.offset)
+        else:
+            gen = _signals.sine if args.input == "sine" else _signals.triangle
+            u = gen(t, a[0], f[0], offset=args.offset)
+    desc = {"kind": args.input, "amplitude": a, "frequency": f, "offset": args.offset}
+    desc.update(duration=args.duration, dt=args.dt)
+    return t, np.asarray(u), desc
+
+
+def _operator(args):
+    if args.plays is not None:
+        if args.thresholds is not None:
+            raise CLIError("give either --thresholds or --plays, not both")
+        if args.r_max is None:
+            raise CLIError("--plays needs --r-max")
+        r = np.arange(args.plays) * args.r_max / args.plays
+    else:
+        if args.r_max is not None:
+            raise CLIError("--r-max is only used with --plays")
+        r = np.asarray(args.thresholds if args.thresholds is not None else [0, 10 / 3, 20 / 3])
+    if args.weights is None:
+        w = np.array([1.0, 3.0, 5.0]) if len(r) == 3 else np.ones(len(r)) / len(r)
+    else:
+        w = np.asarray(args.weights)
+    if len(w) != len(r):
+        raise CLIError(f"{len(w)} weights for {len(r)} thresholds")
+    x0 = np.asarray(args.initial_states)
+    if len(x0) not in (1, len(r)):
+        raise CLIError(f"{len(x0)} initial states for {len(r)} thresholds; give 1 or {len(r)}")
+    return PIOperator(r, w, x0 if len(x0) > 1 else x0[0])
+
+
+def run(args) -> int:
+    out = _io.check_outputs(args.out, OUTPUTS, args.force)
+    op = _operator(args)
+    t, u, desc = _input(args)
+    H = np.asarray(op.regressor(u))
+    y = np.asarray(op(u))
+    cols = {"t": t, "u": u, "y": y} | {f"x_{j + 1}": H[:, j] for j in range(H.shape[1])}
+    written = [_io.write_csv(out / "simulate.csv", cols)]
+    written.append(_io.save_figure(_figure(t, u, y, H, op), out / "loop.png", dpi=120))
+    summary = {
+        "thresholds": op.thresholds,
+        "weights": op.weights,
+        "initial_states": op.initial_states,
+        "input": desc,
+        "n_samples": len(t),
+        "y_min": float(y.min()),
+        "y_max": float(y.max()),
+        "final_states": H[-1],
+    }
+    written.append(_io.write_json(out / "simulate.json", summary))
+    for p in written:
+        print(p)
+    return 0
+
+
+def _figure(t, u, y, H, op):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+    a1.plot(u, y, lw=1)
+    a1.set(xlabel="input u", ylabel="output y", title="PI operator loop")
+    for j in range(H.shape[1]):
+        a2.plot(t, H[:, j], lw=1, label=f"r = {float(op.thresholds[j]):.3g}")
+    a2.set(xlabel="time [s]", ylabel="play output", title="play outputs")
+    if H.shape[1] <= 10:
+        a2.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
