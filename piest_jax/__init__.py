@@ -4,11 +4,29 @@ Play and stop operators, the PI operator and its analytic inverse, adaptive weig
 persistent-excitation analysis, gradient-based threshold fitting, and model-discrepancy diagnosis.
 """
 
+from ._certificate import Certificate as Certificate
+from ._certificate import convergence_certificate as convergence_certificate
+from ._certificate import information_form as information_form
+from ._estimators import AbstractEstimator as AbstractEstimator
+from ._estimators import Estimation as Estimation
+from ._estimators import estimate as estimate
+from ._gradient import NormalisedGradient as NormalisedGradient
+from ._excitation import IndependenceCheck as IndependenceCheck
+from ._excitation import assumption1_ratio as assumption1_ratio
+from ._excitation import excited_plays as excited_plays
+from ._excitation import lemma1_check as lemma1_check
+from ._excitation import pe_level as pe_level
+from ._excitation import window_starts as window_starts
+from ._excitation import windowed_gram as windowed_gram
+from ._excitation import windowed_pe_levels as windowed_pe_levels
+from ._excitation import windowed_range as windowed_range
 from ._inverse import inverse as inverse
 from ._pi import AbstractHysteresisOperator as AbstractHysteresisOperator
 from ._pi import PIOperator as PIOperator
 from ._play import play as play
 from ._play import play_step as play_step
 from ._play import stop as stop
+from ._rls import ContinuousRLS as ContinuousRLS
+from ._rls import ForgettingRLS as ForgettingRLS
 
 __version__ = "0.1.0"

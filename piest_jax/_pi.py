@@ -33,7 +33,8 @@ class PIOperator(AbstractHysteresisOperator):
     - `weights`: (n,).
     - `initial_states`: the plays' states before the first sample, a scalar or (n,); they need not
       be zero (paper eq. 2).
-    - `method`: how the plays are run, `"scan"` or `"associative"` (see [`play`][]).
+    - `method`: how the plays are run, `"scan"`, `"associative"`, `"kernel"` or `"auto"` (see
+      [`play`][]).
 
     Bad shapes raise `ValueError` when the operator is built; negative or unsorted thresholds raise
     `ValueError` for concrete values and an `eqx.error_if` runtime error under `jit`.
@@ -92,6 +93,11 @@ class PIOperator(AbstractHysteresisOperator):
         u = self._input(u)
         if self.method == "associative":
             return self.regressor(u) @ self.weights
+        if self.method in ("kernel", "auto"):
+            from . import _kernel
+
+            if _kernel.use_kernel(self.method):
+                return _kernel.pi_output(u, self.thresholds, self.initial_states, self.weights)
         r, w = self.thresholds, self.weights
 
         def step(x, ut):

@@ -22,8 +22,9 @@ from jaxtyping import Array
 from . import _checks
 from ._custom_types import ScalarLike, SignalLike, ThresholdsLike
 
-Method = Literal["scan", "associative"]
-METHODS = ("scan", "associative")
+Method = Literal["scan", "associative", "kernel", "auto"]
+# "kernel" is the compiled CPU kernel (`_kernel/`); "auto" takes it on CPU when built, else the scan.
+METHODS = ("scan", "associative", "kernel", "auto")
 
 
 def play_step(x: Array, u: Array, r: Array) -> Array:
@@ -68,6 +69,12 @@ def _associative(u: Array, r: Array, x0: Array) -> Array:
 
 def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
     """Play outputs (T, n) for thresholds r (n,) and initial states x0 (n,)."""
+    if method in ("kernel", "auto"):
+        from . import _kernel
+
+        if _kernel.use_kernel(method):
+            return _kernel.bank(u, r, x0)
+        return _scan(u, r, x0)
     if method == "scan":
         return _scan(u, r, x0)
     if method == "associative":
@@ -104,8 +111,10 @@ def play(
     - `u`: the input signal, shape (T,).
     - `r`: one threshold (scalar) or a bank of thresholds (n,), all >= 0.
     - `x0`: the initial state(s), a scalar or (n,).
-    - `method`: `"scan"` (sequential `lax.scan`, the reference) or `"associative"`
-      (`lax.associative_scan`, O(log T) depth, same outputs to the last bit).
+    - `method`: `"scan"` (sequential `lax.scan`, the reference), `"associative"`
+      (`lax.associative_scan`, O(log T) depth, same outputs to the last bit), `"kernel"` (the
+      compiled CPU kernel, same outputs to the last bit; falls back to the scan with a warning when
+      it was not built) or `"auto"` (the kernel on a CPU backend when built, the scan elsewhere).
 
     **Returns:** the play output, (T,) for a scalar `r` and (T, n) for a vector `r`.
     """

@@ -5,10 +5,10 @@ import os
 import sys
 
 from ._common import CLIError
-from . import simulate
+from . import diagnose, simulate, reproduce
 
 # Each command module provides NAME, HELP, DESCRIPTION, add_arguments(parser) and run(args) -> int.
-COMMANDS = [simulate]
+COMMANDS = [simulate, diagnose, reproduce]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,54 @@
+"""Plain NumPy loops: the independent references the operators are tested against."""
+
+import numpy as np
+
+
+def play(u, r, x0=0.0):
+    """Play outputs (T, n) by the defining recursion x_t = max(u_t - r, min(u_t + r, x_{t-1}))."""
+    u = np.asarray(u, dtype=np.float64)
+    r = np.atleast_1d(np.asarray(r, dtype=np.float64))
+    x = np.broadcast_to(np.asarray(x0, dtype=np.float64), r.shape).copy()
+    out = np.empty((len(u), len(r)))
+    for t in range(len(u)):
+        for j in range(len(r)):
+            lo, hi = u[t] - r[j], u[t] + r[j]
+            x[j] = lo if x[j] < lo else (hi if x[j] > hi else x[j])
+        out[t] = x
+    return out
+
+
+def stop(u, r, e0=0.0):
+    """Stop outputs (T, n) by the direct recursion e_t = clamp(e_{t-1} + u_t - u_{t-1}, -r, r).
+
+    Before the first sample the stop holds `e0` and the input is taken to have been u_0.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    r = np.atleast_1d(np.asarray(r, dtype=np.float64))
+    e = np.broadcast_to(np.asarray(e0, dtype=np.float64), r.shape).copy()
+    out = np.empty((len(u), len(r)))
+    prev = u[0]
+    for t in range(len(u)):
+        for j in range(len(r)):
+            e[j] = min(r[j], max(-r[j], e[j] + u[t] - prev))
+        prev = u[t]
+        out[t] = e
+    return out
+
+
+def pi(u, r, w, x0=0.0):
+    """PI output y_t = Σ_j w_j x_j(t), accumulated sample by sample."""
+    H = play(u, r, x0)
+    w = np.asarray(w, dtype=np.float64)
+    y = np.zeros(len(u))
+    for t in range(len(u)):
+        acc = 0.0
+        for j in range(len(w)):
+            acc += w[j] * H[t, j]
+        y[t] = acc
+    return y
+
+
+def reachable_states(r, rng, length=40, scale=3.0):
+    """Play states some input history produces: the final states of a random walk."""
+    u = np.cumsum(rng.normal(0.0, scale, size=length))
+    return play(u, r, 0.0)[-1]

@@ -1,0 +1,220 @@
+"""Online estimators: references, stability over P0 and dtype, PE failure, certificate, errors."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import piest_jax as pj
+from piest_jax._reproduce import CASES, DEFAULT_P0, THRESHOLDS
+
+DT = 1e-3
+T = np.arange(1001) * DT
+
+
+def _case(name):
+    case = CASES[name]
+    u = case.input()
+    op = pj.PIOperator(THRESHOLDS, case.weights)
+    return np.asarray(op.regressor(u)), np.asarray(op(u)), np.asarray(case.weights)
+
+
+FIG5 = _case("fig5")
+FIG6 = _case("fig6")
+
+
+def _ode_reference(H, y, p0, dt, substeps, normalisation="paper"):
+    """The paper's eqs. 5-6, RK4 with the data held over each sample interval (NumPy)."""
+    n = H.shape[1]
+    w, P = np.zeros(n), p0 * np.eye(n)
+    out = []
+    for h, yk in zip(H, y):
+        hh = h @ h
+        m2 = (1 + hh) ** 2 if normalisation == "paper" else 1 + hh
+
+        def f(w, P):
+            return P @ h * (yk - h @ w) / m2, -P @ np.outer(h, h) @ P / m2
+
+        d = dt / substeps
+        for _ in range(substeps):
+            k1 = f(w, P)
+            k2 = f(w + d / 2 * k1[0], P + d / 2 * k1[1])
+            k3 = f(w + d / 2 * k2[0], P + d / 2 * k2[1])
+            k4 = f(w + d * k3[0], P + d * k3[1])
+            w = w + d / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+            P = P + d / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+        out.append(w)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("name", ["fig5", "fig6"])
+def test_paper_figures_converge_noise_free(name):
+    H, y, w_true = _case(name)
+    res = pj.estimate(pj.ContinuousRLS(DEFAULT_P0, DT), H, y)
+    final = np.asarray(res.weights[-1])
+    assert np.all(np.abs(final - w_true) <= 1e-3 * np.abs(w_true))
+
+
+@pytest.mark.parametrize("normalisation", ["paper", "standard"])
+def test_exact_step_matches_paper_ode(normalisation):
+    H, y, _ = FIG5
+    H, y = H[:120], y[:120]
+    # small P0 so that the ODE itself is non-stiff and RK4 converges
+    ref = _ode_reference(H, y, 50.0, DT, 20, normalisation)
+    got = pj.estimate(pj.ContinuousRLS(50.0, DT, normalisation=normalisation), H, y).weights
+    np.testing.assert_allclose(got, ref, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("P0", [1.0, 1e4, 1e8, 1e12, "matrix"])
+@pytest.mark.parametrize("normalisation", ["paper", "standard"])
+def test_sequential_scan_equals_information_form(P0, normalisation):
+    H, y, _ = FIG6
+    if P0 == "matrix":
+        P0 = np.array([[2e6, 1e5, 0.0], [1e5, 5e5, -2e4], [0.0, -2e4, 1e6]])
+    w0 = np.array([0.5, -1.0, 2.0])
+    est = pj.ContinuousRLS(P0, DT, normalisation=normalisation)
+    seq = np.asarray(pj.estimate(est, H, y, w0).weights)
+    info = np.asarray(pj.information_form(H, y, P0, DT, normalisation=normalisation, initial_weights=w0))
+    np.testing.assert_allclose(seq, info, rtol=1e-7, atol=1e-7 * np.abs(info).max())
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda p: pj.ContinuousRLS(p, DT),
+        lambda p: pj.ContinuousRLS(p, 10.0, normalisation="standard"),
+        lambda p: pj.ForgettingRLS(p, 0.98),
+        lambda p: pj.ForgettingRLS(p, 1.0, windup="none"),
+    ],
+    ids=["cont-paper", "cont-standard-dt10", "forget-0.98", "rls-1"],
+)
+def test_never_nan_or_inf_for_P0_1_to_1e12(make, dtype):
+    H, y, w_true = FIG5
+    H, y = jnp.asarray(H, dtype), jnp.asarray(y, dtype)
+    p0s = jnp.asarray(10.0 ** np.arange(0, 13, 2), dtype)
+    res = jax.vmap(lambda p: pj.estimate(make(p), H, y))(p0s)
+    assert res.weights.dtype == dtype
+    for a in (res.weights, res.error, res.gain_trace, res.gain_max_eig):
+        assert bool(jnp.all(jnp.isfinite(a))), dtype
+    assert float(jnp.min(res.gain_min_eig)) >= 0.0
+    # large P0 converge (how far depends on P0; 1e8 and up are all well within 1 %)
+    final = np.asarray(res.weights[-3:, -1], np.float64)
+    tol = 1e-2 if dtype == jnp.float32 else 1e-4
+    assert np.all(np.abs(final - w_true) <= tol * w_true), final
+
+
+def test_forgetting_rls_matches_numpy_loop():
+    H, y, _ = FIG6
+    rng = np.random.default_rng(1)
+    y = y + 0.05 * rng.normal(size=y.shape)
+    lam, p0 = 0.97, 100.0
+    w, P, ref = np.zeros(3), p0 * np.eye(3), []
+    for h, yk in zip(H, y):
+        g = P @ h / (lam + h @ P @ h)
+        w = w + g * (yk - h @ w)
+        P = (P - np.outer(g, h @ P)) / lam
+        ref.append(w)
+    res = pj.estimate(pj.ForgettingRLS(p0, lam, windup="none"), H, y)
+    np.testing.assert_allclose(res.weights, np.array(ref), rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(res.gain_trace[-1], np.trace(P), rtol=1e-8)
+
+
+def test_normalised_gradient_matches_numpy_loop_and_converges():
+    H, y, w_true = FIG5
+    mu = 1.3
+    w, ref = np.zeros(3), []
+    for h, yk in zip(H, y):
+        w = w + mu * h * (yk - h @ w) / (1 + h @ h)
+        ref.append(w)
+    res = pj.estimate(pj.NormalisedGradient(mu), H, y)
+    np.testing.assert_allclose(res.weights, np.array(ref), rtol=1e-10, atol=1e-12)
+    # slower than least squares, but converging under PE (5 s of the Fig. 5 input)
+    t = np.arange(5001) * DT
+    op = pj.PIOperator(THRESHOLDS, w_true)
+    u = 10 * np.sin(2 * np.pi * 5 * t)
+    long = pj.estimate(pj.NormalisedGradient(1.0), op.regressor(u), op(u))
+    err = np.linalg.norm(np.asarray(long.weights) - w_true, axis=1)
+    assert err[-1] < 0.1 * err[0]
+
+
+def test_non_pe_input_stays_finite_and_windup_is_bounded():
+    u = 2.0 * np.sin(2 * np.pi * 5 * T)
+    op = pj.PIOperator(THRESHOLDS, (1.0, 3.0, 5.0))
+    H, y = np.asarray(op.regressor(u)), np.asarray(op(u))
+    assert abs(float(pj.pe_level(H, 200))) < 1e-12
+    cont = pj.estimate(pj.ContinuousRLS(1e12, DT), H, y)
+    assert bool(jnp.all(jnp.isfinite(cont.weights)))
+    # the excited direction is learned, the unexcited gain stays at P0 (no growth)
+    np.testing.assert_allclose(cont.weights[-1, 0], 1.0 + 3.0 * 0 + 5.0 * 0, rtol=1e-6)
+    np.testing.assert_allclose(cont.gain_max_eig[-1], 1e12, rtol=1e-6)
+    capped = pj.estimate(pj.ForgettingRLS(10.0, 0.95, windup="trace"), H, y)
+    assert float(jnp.max(capped.gain_trace)) <= 30.0 * (1 + 1e-9)
+    reset = pj.estimate(pj.ForgettingRLS(10.0, 0.95, windup="reset", max_trace=40.0), H, y)
+    assert float(jnp.max(reset.gain_trace)) <= 40.0 * (1 + 1e-9)
+    wound = pj.estimate(pj.ForgettingRLS(10.0, 0.95, windup="none"), H, y)
+    assert float(wound.gain_trace[-1]) > 1e20  # wind-up without protection
+    for r in (capped, reset):
+        assert bool(jnp.all(jnp.isfinite(r.weights)))
+
+
+@pytest.mark.parametrize("P0", [1e5, 1e8])
+def test_certificate_bounds_the_error(P0):
+    H, y, w_true = FIG5
+    cert = pj.convergence_certificate(H, P0, DT, 200)
+    res = pj.estimate(pj.ContinuousRLS(P0, DT), H, y)
+    rel = np.linalg.norm(np.asarray(res.weights) - w_true, axis=1) / np.linalg.norm(w_true)
+    gram, pe = np.asarray(cert.gram_bound), np.asarray(cert.pe_bound)
+    assert np.all(rel <= gram * (1 + 1e-8))
+    assert np.all(gram <= pe * (1 + 1e-12))
+    assert pe[-1] < 1.0  # the PE bound alone already certifies convergence
+    # noise-free closed form: the error is exactly P_k P0⁻¹ W̃0, so the bound is tight along
+    # the least-excited direction and the scan reaches at least 1e-3 of it
+    assert rel[-1] >= 1e-3 * gram[-1]
+
+
+def test_vmap_over_P0_equals_loop():
+    H, y, _ = FIG5
+    ps = jnp.asarray([1e3, 1e6, 1e9])
+    batched = jax.vmap(lambda p: pj.estimate(pj.ContinuousRLS(p, DT), H, y).weights[-1])(ps)
+    loop = [np.asarray(pj.estimate(pj.ContinuousRLS(float(p), DT), H, y).weights[-1]) for p in ps]
+    np.testing.assert_allclose(batched, np.array(loop), rtol=1e-10)
+
+
+def test_bad_input_errors():
+    H, y, _ = FIG5
+    with pytest.raises(ValueError, match="not symmetric"):
+        pj.ContinuousRLS(np.array([[1.0, 2.0], [0.0, 1.0]]), DT)
+    with pytest.raises(ValueError, match="smallest eigenvalue"):
+        pj.ContinuousRLS(np.diag([1.0, -1.0, 2.0]), DT)
+    with pytest.raises(ValueError, match="must be positive definite"):
+        pj.ForgettingRLS(-1.0, 0.9)
+    with pytest.raises(ValueError, match=r"forgetting factor must be in \(0, 1\]"):
+        pj.ForgettingRLS(1.0, 1.5)
+    with pytest.raises(ValueError, match=r"forgetting factor must be in \(0, 1\]"):
+        pj.ForgettingRLS(1.0, 0.0)
+    with pytest.raises(ValueError, match=r"gain must be in \(0, 2\)"):
+        pj.NormalisedGradient(2.0)
+    with pytest.raises(ValueError, match="`dt` must be positive"):
+        pj.ContinuousRLS(1.0, 0.0)
+    with pytest.raises(ValueError, match="unknown normalisation"):
+        pj.ContinuousRLS(1.0, DT, normalisation="other")
+    with pytest.raises(ValueError, match="unknown windup"):
+        pj.ForgettingRLS(1.0, windup="clip")
+    bad = H.copy()
+    bad[10, 1] = np.nan
+    with pytest.raises(ValueError, match="`H` contains NaN or inf"):
+        pj.estimate(pj.ContinuousRLS(1.0, DT), bad, y)
+    with pytest.raises(ValueError, match="`y` contains NaN or inf"):
+        pj.estimate(pj.ContinuousRLS(1.0, DT), H, np.where(np.arange(len(y)) == 3, np.inf, y))
+    with pytest.raises(ValueError, match="thresholds and regressor do not match"):
+        pj.estimate(pj.ContinuousRLS(np.eye(4), DT), H, y)
+    with pytest.raises(ValueError, match="`initial_weights` has shape"):
+        pj.estimate(pj.ContinuousRLS(1.0, DT), H, y, np.zeros(2))
+    with pytest.raises(ValueError, match="`y` has 10 samples"):
+        pj.estimate(pj.ContinuousRLS(1.0, DT), H, y[:10])
+    # traced settings are checked at run time
+    run = eqx.filter_jit(lambda lam: pj.estimate(pj.ForgettingRLS(1.0, lam), H[:5], y[:5]).weights)
+    with pytest.raises(eqx.EquinoxRuntimeError, match="forgetting factor"):
+        run(1.5).block_until_ready()

@@ -1,0 +1,154 @@
+"""The play and stop operators against NumPy loops, scan against associative scan, and properties."""
+
+import functools
+
+import hypothesis.extra.numpy as hnp
+import hypothesis.strategies as st
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given
+
+import piest_jax as pj
+
+import reference as ref
+
+T = 24
+N = 4
+
+
+@functools.partial(jax.jit, static_argnames="method")
+def _play(u, r, x0, method="scan"):
+    return pj.play(u, r, x0, method=method)
+
+
+@functools.partial(jax.jit, static_argnames="method")
+def _stop(u, r, e0, method="scan"):
+    return pj.stop(u, r, e0, method=method)
+
+
+def _random_case(rng, t=T, n=N, dtype=np.float64):
+    u = rng.normal(0.0, 2.0, size=t).cumsum().astype(dtype)
+    r = np.sort(rng.uniform(0.0, 3.0, size=n)).astype(dtype)
+    r[0] = 0.0
+    x0 = rng.normal(0.0, 3.0, size=n).astype(dtype)
+    return u, r, x0
+
+
+signals = hnp.arrays(np.float64, T, elements=st.floats(-50, 50, allow_subnormal=False))
+banks = hnp.arrays(np.float64, N, elements=st.floats(0, 20, allow_subnormal=False))
+states = hnp.arrays(np.float64, N, elements=st.floats(-60, 60, allow_subnormal=False))
+
+
+@pytest.mark.parametrize("method", ["scan", "associative"])
+def test_play_matches_numpy_loop(rng, method):
+    for _ in range(5):
+        u, r, x0 = _random_case(rng)
+        np.testing.assert_allclose(_play(u, r, x0, method), ref.play(u, r, x0), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["scan", "associative"])
+def test_scalar_threshold_and_scalar_state(rng, method):
+    u, _, _ = _random_case(rng)
+    out = pj.play(u, 1.5, -0.7, method=method)
+    assert out.shape == (T,)
+    np.testing.assert_allclose(out, ref.play(u, 1.5, -0.7)[:, 0], rtol=0, atol=1e-12)
+    bank = pj.play(u, jnp.array([0.0, 1.5]), -0.7, method=method)
+    assert bank.shape == (T, 2)
+    np.testing.assert_allclose(bank[:, 0], u, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("method", ["scan", "associative"])
+def test_stop_matches_direct_stop_recursion(rng, method):
+    for _ in range(5):
+        u, r, _ = _random_case(rng)
+        e0 = rng.uniform(-1, 1, size=N) * r
+        got = _stop(u, r, e0, method)
+        np.testing.assert_allclose(got, ref.stop(u, r, e0), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got + _play(u, r, u[0] - e0, method), np.repeat(u[:, None], N, 1), atol=1e-12)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_scan_and_associative_bit_identical(rng, dtype):
+    for t in (1, 2, 3, 17, 200):
+        u, r, x0 = _random_case(rng, t=t, dtype=dtype)
+        a = pj.play(u, r, x0, method="scan")
+        b = pj.play(u, r, x0, method="associative")
+        assert a.dtype == b.dtype == dtype
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        s1 = pj.stop(u, r, 0.0, method="scan")
+        s2 = pj.stop(u, r, 0.0, method="associative")
+        np.testing.assert_array_equal(np.asarray(s1), np.asarray(s2))
+
+
+def test_play_step_is_one_clamp():
+    x = pj.play_step(jnp.array([5.0, -5.0, 0.3]), 0.0, jnp.array([1.0, 1.0, 1.0]))
+    np.testing.assert_array_equal(np.asarray(x), [1.0, -1.0, 0.3])
+
+
+@given(signals, banks, states)
+def test_output_within_band(u, r, x0):
+    for method in ("scan", "associative"):
+        x = np.asarray(_play(u, r, x0, method))
+        assert np.all(x >= u[:, None] - r) and np.all(x <= u[:, None] + r)
+    e = np.asarray(_stop(u, r, 0.0))
+    assert np.all(np.abs(e) <= r)
+
+
+@given(signals, states)
+def test_zero_threshold_gives_input(u, x0):
+    for method in ("scan", "associative"):
+        out = np.asarray(_play(u, np.zeros(N), x0, method))
+        np.testing.assert_array_equal(out, np.repeat(u[:, None], N, axis=1))
+
+
+@given(signals, banks, states, st.sampled_from([1, 9, T - 1]))
+def test_two_pieces_equal_whole(u, r, x0, k):
+    whole = np.asarray(_play(u, r, x0))
+    first = np.asarray(_play(u[:k], r, x0))
+    second = np.asarray(_play(u[k:], r, first[-1]))
+    np.testing.assert_array_equal(np.concatenate([first, second]), whole)
+    e_whole = np.asarray(_stop(u, r, 0.0))
+    e_second = np.asarray(_stop(u[k - 1 :], r, e_whole[k - 1]))
+    np.testing.assert_allclose(e_second[1:], e_whole[k:], rtol=0, atol=1e-12)
+
+
+@given(signals, banks, states, st.integers(0, T - 2), hnp.arrays(np.float64, 5, elements=st.floats(0, 1)))
+def test_rate_independence(u, r, x0, k, fractions):
+    # Samples inserted between u_k and u_{k+1} lie on a monotone stretch.
+    lo, hi = u[k], u[k + 1]
+    extra = np.clip(lo + np.sort(fractions) * (hi - lo), min(lo, hi), max(lo, hi))
+    if hi < lo:
+        extra = np.clip(lo + np.sort(fractions) * (hi - lo), hi, lo)
+    dense = np.concatenate([u[: k + 1], extra, u[k + 1 :]])
+    old = np.r_[np.arange(k + 1), np.arange(k + 1, T) + len(extra)]
+    for method in ("scan", "associative"):
+        np.testing.assert_array_equal(
+            np.asarray(_play(dense, r, x0, method))[old], np.asarray(_play(u, r, x0, method))
+        )
+
+
+def test_shape_and_value_errors():
+    u = jnp.zeros(5)
+    with pytest.raises(ValueError, match="one signal of shape"):
+        pj.play(jnp.zeros((5, 2)), 1.0)
+    with pytest.raises(ValueError, match="is empty"):
+        pj.play(jnp.zeros(0), 1.0)
+    with pytest.raises(ValueError, match="non-negative"):
+        pj.play(u, jnp.array([0.0, -1.0]))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        pj.play(u, jnp.array([0.0, jnp.nan]))
+    with pytest.raises(ValueError, match="has 3 entries but there are 2 thresholds"):
+        pj.play(u, jnp.array([0.0, 1.0]), jnp.zeros(3))
+    with pytest.raises(ValueError, match="but the threshold is a scalar"):
+        pj.play(u, 1.0, jnp.zeros(3))
+    with pytest.raises(ValueError, match="unknown play method"):
+        pj.play(u, 1.0, method="fast")
+    with pytest.raises(ValueError, match="scalar or a vector"):
+        pj.stop(u, jnp.ones((2, 2)))
+
+
+def test_negative_threshold_under_jit_raises():
+    with pytest.raises(Exception, match="must be finite and non-negative"):
+        jax.block_until_ready(_play(jnp.zeros(T), -jnp.ones(N), jnp.zeros(N)))
