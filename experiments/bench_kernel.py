@@ -1,21 +1,38 @@
-"""Throughput of the compiled play kernel against Numba, plain C and the JAX scan, in one run.
+"""Throughput of the compiled play kernel against the JAX scan, Numba and plain C, forward and backward.
 
-Fused PI output, float32, n = 32 plays: a single long signal (T = 10^6) and a batch
-(B = 256 signals of T = 2*10^4). Rows: the kernel (`method="kernel"`, forward and reverse-mode
-gradient wrt input, thresholds, weights and initial states), the pure-JAX scan, a Numba
-`@njit(fastmath=True)` loop (`prange` over the batch), and the same loop written in C, compiled
-here with `gcc -O3` and called through ctypes. Every timing is the minimum over repeats after one
-warm-up call, with `block_until_ready`; throughput is samples x plays per second.
+Fused PI output, float32, n = 32 plays, on two cases: a single long signal (T = 10^6) and a batch
+(B = 256 signals of T = 2*10^4). Rows:
 
-Run: python experiments/bench_kernel.py [--out experiments/results/bench_kernel.json] [--quick]
-Writes one JSON file and prints a table.
+- `kernel`: `PIOperator(..., method="kernel")` under `jit` (`vmap` for the batch: one kernel call,
+  the batch split across the CPU cores);
+- `jax_scan`: the same operator with the pure-JAX `lax.scan` (`method="scan"`);
+- `numba`: the same loop under `@njit(fastmath=True)` (single signal) and `@njit(parallel=True)`
+  with `prange` over the batch;
+- `c_O3`: the same loop in C, compiled here with `cc -O3` and called through ctypes (one signal
+  after another for the batch); `c_O3_fast_native` adds `-march=native -ffast-math`, which lets
+  the compiler vectorise the sum over plays, for reference.
+
+Backward: the reverse-mode gradient of <g, y> with respect to the input, thresholds, weights and
+initial states, as `jit(grad)` (forward pass with residuals plus backward pass), for the kernel and
+the scan; `kernel_vjp` times the kernel's backward pass alone (residuals precomputed).
+
+Every row is timed in interleaved rounds (one call per row per round, after a warm-up call, with
+`block_until_ready`) and reported as the minimum over rounds, which filters out the time slices lost
+to other processes on a shared machine (rows slower than 1 s per call get 3 rounds). The process
+CPU time of each call is recorded the same way (`cpu_seconds`): on a loaded machine it is the
+steadier measure of work, and the backward/forward ratios are given in both. Throughput is
+samples x plays per second of wall time.
+
+Run: python experiments/bench_kernel.py [--out experiments/results/bench_kernel.json]
+[--rounds 15] [--quick]. Writes one JSON file and prints a Markdown table and the target ratios.
 """
 
 import argparse
 import ctypes
-import json
 import os
+import platform
 import subprocess
+import sys
 import tempfile
 import time
 
@@ -24,7 +41,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from piest_jax import PIOperator
+from piest_jax._io import write_json
 from piest_jax._kernel import available
+
+N_PLAYS = 32
+
+# Targets of the kernel (ratios, higher is better except for the backward ones).
+TARGETS = {
+    "single_forward_kernel_vs_numba": 1.0,
+    "batch_forward_kernel_vs_numba_prange": 1.0,
+    "single_forward_kernel_vs_c_O3": 0.6,
+    "single_grad_over_forward_max": 3.0,
+    "batch_grad_over_forward_max": 3.0,
+}
 
 C_SOURCE = r"""
 #include <stdint.h>
@@ -44,21 +73,11 @@ void pi_loop(const float* u, int64_t T, const float* r, const float* w, float* x
 """
 
 
-def _min_time(fn, repeats):
-    fn()
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
-def _numba_fns():
+def _numba_loops():
     from numba import njit, prange
 
     @njit(fastmath=True)
-    def pi_loop(u, r, w, x0, y):
+    def single(u, r, w, x0, y):
         x = x0.copy()
         for t in range(u.shape[0]):
             acc = np.float32(0.0)
@@ -68,7 +87,7 @@ def _numba_fns():
             y[t] = acc
 
     @njit(fastmath=True, parallel=True)
-    def pi_batch(u, r, w, x0, y):
+    def batch(u, r, w, x0, y):
         for b in prange(u.shape[0]):
             x = x0.copy()
             for t in range(u.shape[1]):
@@ -78,117 +97,220 @@ def _numba_fns():
                     acc += w[j] * x[j]
                 y[b, t] = acc
 
-    return pi_loop, pi_batch
+    return single, batch
 
 
-def _c_fn(tmp):
+def _c_loop(tmp, extra_flags):
     src = os.path.join(tmp, "pi_loop.c")
-    lib = os.path.join(tmp, "pi_loop.so")
+    lib = os.path.join(tmp, f"pi_loop{len(extra_flags)}.so")
     with open(src, "w") as f:
         f.write(C_SOURCE)
-    subprocess.run(["gcc", "-O3", "-shared", "-fPIC", src, "-o", lib], check=True)
+    subprocess.run(["cc", "-O3", *extra_flags, "-shared", "-fPIC", src, "-o", lib], check=True)
     fn = ctypes.CDLL(lib).pi_loop
     fp = ctypes.POINTER(ctypes.c_float)
     fn.argtypes = [fp, ctypes.c_int64, fp, fp, fp, ctypes.c_int64, fp]
 
     def call(u, r, w, x0, y):
-        x = x0.copy()
-        p = lambda a: a.ctypes.data_as(fp)  # noqa: E731
-        fn(p(u), u.shape[0], p(r), p(w), p(x), r.shape[0], p(y))
+        def ptr(a):
+            return a.ctypes.data_as(fp)
+
+        for ub, yb in zip(np.atleast_2d(u), np.atleast_2d(y)):
+            x = x0.copy()
+            fn(ptr(ub), ub.shape[0], ptr(r), ptr(w), ptr(x), r.shape[0], ptr(yb))
 
     return call
+
+
+def _jax_rows(method, batched):
+    def forward(u, r, w, x0):
+        return PIOperator(r, w, x0, method=method)(u)
+
+    def loss(u, r, w, x0, g):
+        return jnp.vdot(g, forward(u, r, w, x0))
+
+    fwd, grad = forward, jax.grad(loss, argnums=(0, 1, 2, 3))
+    if batched:
+        fwd = jax.vmap(fwd, in_axes=(0, None, None, None))
+        grad = jax.vmap(grad, in_axes=(0, None, None, None, 0))
+    return jax.jit(fwd), jax.jit(grad)
+
+
+def _vjp_only(batched):
+    def forward(u, r, w, x0):
+        return PIOperator(r, w, x0, method="kernel")(u)
+
+    fwd = jax.vmap(forward, in_axes=(0, None, None, None)) if batched else forward
+    apply = jax.jit(lambda vjp, g: vjp(g))
+
+    def prepare(u, r, w, x0, g):
+        _, vjp = jax.vjp(fwd, u, r, w, x0)
+        return lambda: apply(vjp, g)
+
+    return prepare
+
+
+def _time_rows(rows, rounds, slow_s=1.0, slow_rounds=3):
+    """Minimum wall time per row over interleaved rounds, after one warm-up call each.
+
+    Rows whose warm-up call took over `slow_s` seconds (the JAX scan's gradient) get only
+    `slow_rounds` rounds: their relative noise is small and they would dominate the run time.
+    """
+    warm = {}
+    for name, fn in rows.items():
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        warm[name] = time.perf_counter() - t0
+    wall = {name: float("inf") for name in rows}
+    cpu = dict(wall)
+    for k in range(rounds):
+        for name, fn in rows.items():
+            if warm[name] > slow_s and k >= slow_rounds:
+                continue
+            c0, t0 = time.process_time(), time.perf_counter()
+            jax.block_until_ready(fn())
+            t1, c1 = time.perf_counter(), time.process_time()
+            wall[name] = min(wall[name], t1 - t0)
+            cpu[name] = min(cpu[name], c1 - c0)
+    return wall, cpu
+
+
+def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=15, seed=0):
+    """Time every row on both cases.
+
+    **Arguments:** `t_single`, the long signal's length; `batch`, (B, T) of the batch case;
+    `rounds`, interleaved timing rounds; `seed`, for the random signals and parameters.
+
+    **Returns:** a dict with, per case, `seconds` and `gelem_per_s` per row, the target `ratios`,
+    and the `config`.
+    """
+    if not available():
+        raise SystemExit("the compiled play kernel is not built; reinstall with a C++ compiler")
+    rng = np.random.default_rng(seed)
+    r = np.linspace(0.0, 1.5, N_PLAYS).astype(np.float32)
+    w = rng.uniform(0.1, 1.0, N_PLAYS).astype(np.float32)
+    x0 = np.zeros(N_PLAYS, np.float32)
+    b_batch, t_batch = batch
+    u1 = np.cumsum(rng.normal(0, 0.1, t_single)).astype(np.float32)
+    ub = np.cumsum(rng.normal(0, 0.1, (b_batch, t_batch)), axis=1).astype(np.float32)
+    nb_single, nb_batch = _numba_loops()
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        c_plain = _c_loop(tmp, [])
+        c_fast = _c_loop(tmp, ["-march=native", "-ffast-math"])
+        for case, u, nb_name, nb_fn in (
+            ("single", u1, "numba", nb_single),
+            ("batch", ub, "numba_prange", nb_batch),
+        ):
+            batched = u.ndim == 2
+            ju, jr, jw, jx0 = (jnp.asarray(a) for a in (u, r, w, x0))
+            g = jnp.asarray(rng.normal(size=u.shape).astype(np.float32))
+            k_fwd, k_grad = _jax_rows("kernel", batched)
+            s_fwd, s_grad = _jax_rows("scan", batched)
+            y = np.empty_like(u)
+            rows = {
+                "kernel": lambda f=k_fwd: f(ju, jr, jw, jx0),
+                "kernel_grad": lambda f=k_grad: f(ju, jr, jw, jx0, g),
+                "kernel_vjp": _vjp_only(batched)(ju, jr, jw, jx0, g),
+                nb_name: lambda f=nb_fn: f(u, r, w, x0, y),
+                "c_O3": lambda: c_plain(u, r, w, x0, y),
+                "c_O3_fast_native": lambda: c_fast(u, r, w, x0, y),
+                "jax_scan": lambda f=s_fwd: f(ju, jr, jw, jx0),
+                "jax_scan_grad": lambda f=s_grad: f(ju, jr, jw, jx0, g),
+            }
+            seconds, cpu_seconds = _time_rows(rows, rounds)
+            elems = u.size * N_PLAYS
+            results[case] = {
+                "seconds": seconds,
+                "cpu_seconds": cpu_seconds,
+                "gelem_per_s": {k: elems / v / 1e9 for k, v in seconds.items()},
+            }
+    s, b = results["single"]["seconds"], results["batch"]["seconds"]
+    sc, bc = results["single"]["cpu_seconds"], results["batch"]["cpu_seconds"]
+    ratios = {
+        "single_forward_kernel_vs_numba": s["numba"] / s["kernel"],
+        "batch_forward_kernel_vs_numba_prange": b["numba_prange"] / b["kernel"],
+        "single_forward_kernel_vs_c_O3": s["c_O3"] / s["kernel"],
+        "single_grad_over_forward_max": s["kernel_grad"] / s["kernel"],
+        "batch_grad_over_forward_max": b["kernel_grad"] / b["kernel"],
+        "single_vjp_over_forward": s["kernel_vjp"] / s["kernel"],
+        "batch_vjp_over_forward": b["kernel_vjp"] / b["kernel"],
+        "single_grad_over_forward_cpu": sc["kernel_grad"] / sc["kernel"],
+        "batch_grad_over_forward_cpu": bc["kernel_grad"] / bc["kernel"],
+        "single_forward_kernel_vs_c_O3_fast_native": s["c_O3_fast_native"] / s["kernel"],
+        "single_forward_kernel_vs_jax_scan": s["jax_scan"] / s["kernel"],
+        "batch_forward_kernel_vs_jax_scan": b["jax_scan"] / b["kernel"],
+        "single_grad_kernel_vs_jax_scan": s["jax_scan_grad"] / s["kernel_grad"],
+        "batch_grad_kernel_vs_jax_scan": b["jax_scan_grad"] / b["kernel_grad"],
+    }
+    met = {
+        k: (ratios[k] <= v if k.endswith("_max") else ratios[k] >= v) for k, v in TARGETS.items()
+    }
+    import numba
+
+    results["ratios"] = ratios
+    results["targets"] = {"wanted": TARGETS, "met": met}
+    results["config"] = {
+        "n_plays": N_PLAYS,
+        "single_T": t_single,
+        "batch": [b_batch, t_batch],
+        "dtype": "float32",
+        "rounds": rounds,
+        "timing": "minimum wall time over interleaved rounds (3 for rows over 1 s), after a warm-up",
+        "cpu_count": os.cpu_count(),
+        "load_average_at_end": list(os.getloadavg()),
+        "machine": platform.machine(),
+        "python": sys.version.split()[0],
+        "jax": jax.__version__,
+        "numba": numba.__version__,
+        "numba_threads": numba.get_num_threads(),
+        "kernel_threads": os.environ.get("PIEST_KERNEL_THREADS", "all cores"),
+    }
+    return results
+
+
+def markdown_table(results) -> str:
+    """The forward and backward throughput of every row, as a Markdown table (G elements/s)."""
+    lines = [
+        "| row | single forward | single backward | batch forward | batch backward |",
+        "|---|---|---|---|---|",
+    ]
+    s, b = results["single"]["gelem_per_s"], results["batch"]["gelem_per_s"]
+
+    def cell(d, k):
+        return f"{d[k]:.2f}" if k in d else "–"
+
+    for label, fwd_s, fwd_b, grad in (
+        ("compiled kernel", "kernel", "kernel", "kernel_grad"),
+        ("JAX lax.scan", "jax_scan", "jax_scan", "jax_scan_grad"),
+        ("Numba njit(fastmath) / prange", "numba", "numba_prange", None),
+        ("C -O3 (ctypes)", "c_O3", "c_O3", None),
+        ("C -O3 -march=native -ffast-math", "c_O3_fast_native", "c_O3_fast_native", None),
+    ):
+        lines.append(
+            f"| {label} | {cell(s, fwd_s)} | {cell(s, grad) if grad else '–'} | "
+            f"{cell(b, fwd_b)} | {cell(b, grad) if grad else '–'} |"
+        )
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="experiments/results/bench_kernel.json")
-    ap.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke test")
-    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--quick", action="store_true", help="small sizes, a smoke test")
     args = ap.parse_args(argv)
-    if not available():
-        raise SystemExit("the compiled play kernel is not built; reinstall with a C++ compiler")
-
-    n = 32
-    t_single, (b_batch, t_batch) = (10**6, (256, 2 * 10**4))
-    if args.quick:
-        t_single, (b_batch, t_batch) = (10**5, (32, 2 * 10**3))
-    rng = np.random.default_rng(0)
-    r = np.linspace(0.0, 1.5, n).astype(np.float32)
-    w = rng.uniform(0.1, 1.0, n).astype(np.float32)
-    x0 = np.zeros(n, np.float32)
-    u1 = np.cumsum(rng.normal(0, 0.1, t_single)).astype(np.float32)
-    ub = np.cumsum(rng.normal(0, 0.1, (b_batch, t_batch)), axis=1).astype(np.float32)
-
-    ops = {m: PIOperator(r, w, x0, method=m) for m in ("kernel", "scan")}
-    fwd = {m: jax.jit(lambda u, op=op: op(u)) for m, op in ops.items()}
-    fwd_b = {m: jax.jit(jax.vmap(lambda u, op=op: op(u))) for m, op in ops.items()}
-
-    def loss(params, u, method):
-        rr, ww, xx = params
-        return jnp.sum(PIOperator(rr, ww, xx, method=method)(u) ** 2)
-
-    grad1 = jax.jit(jax.grad(lambda p, u: loss(p, u, "kernel"), argnums=(0, 1)))
-    grad_b = jax.jit(
-        jax.grad(lambda p, u: jnp.sum(jax.vmap(lambda v: loss(p, v, "kernel"))(u)), argnums=(0, 1))
-    )
-    params = tuple(jnp.asarray(a) for a in (r, w, x0))
-    ju1, jub = jnp.asarray(u1), jnp.asarray(ub)
-
-    nb_loop, nb_batch = _numba_fns()
-    results = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        c_loop = _c_fn(tmp)
-        y1 = np.empty_like(u1)
-        yb = np.empty_like(ub)
-        rep = args.repeats
-        single = {
-            "kernel": _min_time(lambda: fwd["kernel"](ju1).block_until_ready(), rep),
-            "kernel_grad": _min_time(lambda: jax.block_until_ready(grad1(params, ju1)), rep),
-            "numba": _min_time(lambda: nb_loop(u1, r, w, x0, y1), rep),
-            "c_O3": _min_time(lambda: c_loop(u1, r, w, x0, y1), rep),
-            "jax_scan": _min_time(lambda: fwd["scan"](ju1).block_until_ready(), max(2, rep // 3)),
-        }
-        batch = {
-            "kernel": _min_time(lambda: fwd_b["kernel"](jub).block_until_ready(), rep),
-            "kernel_grad": _min_time(lambda: jax.block_until_ready(grad_b(params, jub)), rep),
-            "numba_prange": _min_time(lambda: nb_batch(ub, r, w, x0, yb), rep),
-            "jax_scan": _min_time(lambda: fwd_b["scan"](jub).block_until_ready(), max(2, rep // 3)),
-        }
-    for name, times, elems in (
-        ("single", single, t_single * n),
-        ("batch", batch, b_batch * t_batch * n),
-    ):
-        results[name] = {
-            "seconds": times,
-            "gelem_per_s": {k: elems / v / 1e9 for k, v in times.items()},
-        }
-    s, b = single, batch
-    results["ratios"] = {
-        "single_kernel_over_numba": s["numba"] / s["kernel"],
-        "single_kernel_over_c_O3": s["c_O3"] / s["kernel"],
-        "single_grad_over_forward": s["kernel_grad"] / s["kernel"],
-        "batch_kernel_over_numba_prange": b["numba_prange"] / b["kernel"],
-        "batch_grad_over_forward": b["kernel_grad"] / b["kernel"],
-        "single_kernel_over_jax_scan": s["jax_scan"] / s["kernel"],
-        "batch_kernel_over_jax_scan": b["jax_scan"] / b["kernel"],
-    }
-    results["config"] = {
-        "n_plays": n,
-        "single_T": t_single,
-        "batch": [b_batch, t_batch],
-        "dtype": "float32",
-        "repeats": args.repeats,
-        "cpu_count": os.cpu_count(),
-        "jax": jax.__version__,
-    }
-    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(results, f, indent=2)
-    for name in ("single", "batch"):
-        for k, v in results[name]["gelem_per_s"].items():
-            print(f"{name:7s} {k:14s} {v:7.2f} G elem/s")
+    sizes = {"t_single": 10**5, "batch": (32, 2 * 10**3)} if args.quick else {}
+    results = run_benchmark(rounds=args.rounds, **sizes)
+    write_json(args.out, results)
+    print(markdown_table(results))
+    print()
     for k, v in results["ratios"].items():
-        print(f"{k:34s} {v:6.2f}")
+        tag = ""
+        if k in TARGETS:
+            tag = f"  target {'<=' if k.endswith('_max') else '>='} {TARGETS[k]}: " + (
+                "met" if results["targets"]["met"][k] else "NOT met"
+            )
+        print(f"{k:40s} {v:6.2f}{tag}")
     print(args.out)
     return 0
 

@@ -1,10 +1,13 @@
 """Confusion matrix of `piest diagnose` over records from the hidden-effect generator.
 
-Writes experiments/results/confusion.json and prints a markdown table. Each row is the hidden
-effect (or pair); each column what the diagnosis named first (or "none"); two-effect rows count a
-record as right when both names are found.
+Writes experiments/results/diagnose_confusion.json (rewritten after every record, so a stopped
+run keeps what it finished) and prints a markdown table. Each row is the hidden effect (or pair);
+each column what the diagnosis named first (or "none"); a record counts as right when the set of
+names equals the hidden set. The search runs with all seven candidates; the final RMSE is that of
+the chosen model (fitted on the fitting blocks) over the whole record, against the true noise std.
+`--shard i/k` runs every k-th record, for k processes; `--merge` combines their files.
 
-    python experiments/diagnose_confusion.py --per-class 30 --samples 2000
+    python experiments/diagnose_confusion.py --per-class 4 --pairs 2 --samples 500
 """
 
 import argparse
@@ -23,23 +26,37 @@ PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", 
          ("initial_state", "rate_dependence")]
 
 
-def run(per_class, n_samples, seed, pairs_per_class):
-    key = jax.random.PRNGKey(seed)
+def jobs(per_class, pairs_per_class):
     classes = [()] + [(e,) for e in _effects.EFFECTS] + PAIRS
+    out = []
+    # Interleaved by record index so that a run stopped early still covers every class.
+    for i in range(max(per_class, pairs_per_class)):
+        for ci, cls in enumerate(classes):
+            if i < (pairs_per_class if len(cls) == 2 else per_class):
+                out.append((ci, i, cls))
+    return out
+
+
+def run(args, shard, n_shards, save):
+    key = jax.random.PRNGKey(args.seed)
     rows = []
     t0 = time.time()
-    for ci, cls in enumerate(classes):
-        n = pairs_per_class if len(cls) == 2 else per_class
-        for i in range(n):
-            k = jax.random.fold_in(jax.random.fold_in(key, ci), i)
-            rec, truth = _hidden.generate(cls, key=k, n_samples=n_samples)
-            s = _diagnose.search(rec)
-            _, rmse = _diagnose.evaluate(rec, s["scaling"], s["theta_final"], s["effects"])
-            rows.append(dict(hidden=list(cls), named=s["effects"], forms=truth["forms"],
-                             noise_std=truth["noise_std"], final_rmse=rmse,
-                             noise_est=s["noise_std"]))
-            print(cls, truth["forms"], "->", s["effects"], f"rmse/noise={rmse / truth['noise_std']:.2f}", flush=True)
-    return rows, time.time() - t0
+    for j, (ci, i, cls) in enumerate(jobs(args.per_class, args.pairs)):
+        if j % n_shards != shard:
+            continue
+        k = jax.random.fold_in(jax.random.fold_in(key, ci), i)
+        rec, truth = _hidden.generate(cls, key=k, n_samples=args.samples)
+        t1 = time.time()
+        s = _diagnose.search(rec, refit=False)
+        _, rmse = _diagnose.evaluate(rec, s["scaling"], s["theta_final"], s["effects"])
+        _, rmse0 = _diagnose.evaluate(rec, s["scaling"], s["theta_base"], [])
+        rows.append(dict(hidden=list(cls), named=s["effects"], pruned=s["pruned"], forms=truth["forms"],
+                         noise_std=truth["noise_std"], baseline_rmse=rmse0, final_rmse=rmse,
+                         noise_est=s["noise_std"], seconds=time.time() - t1))
+        print(cls, truth["forms"], "->", s["effects"], f"rmse/noise={rmse / truth['noise_std']:.2f}",
+              f"{time.time() - t1:.0f}s", flush=True)
+        save(rows, time.time() - t0)
+    return rows
 
 
 def summarise(rows):
@@ -59,6 +76,17 @@ def summarise(rows):
     return stats
 
 
+def totals(rows):
+    """Shares named right for effect-free, single-effect and two-effect records."""
+    out = {}
+    for label, k in (("no_effect", 0), ("single", 1), ("pair", 2)):
+        sel = [r for r in rows if len(r["hidden"]) == k]
+        right = [r for r in sel if set(r["named"]) == set(r["hidden"])]
+        out[label] = dict(n=len(sel), right=len(right),
+                          rmse_within_1_5_noise=sum(r["final_rmse"] <= 1.5 * r["noise_std"] for r in right))
+    return out
+
+
 def markdown(stats):
     cols = ["none", *_effects.EFFECTS]
     lines = ["| hidden \\ named first | " + " | ".join(cols) + " | right | RMSE ≤ 1.5σ when right |",
@@ -74,21 +102,35 @@ def markdown(stats):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--per-class", type=int, default=30)
-    ap.add_argument("--pairs", type=int, default=10)
-    ap.add_argument("--samples", type=int, default=2000)
+    ap.add_argument("--per-class", type=int, default=4)
+    ap.add_argument("--pairs", type=int, default=2)
+    ap.add_argument("--samples", type=int, default=500)
     ap.add_argument("--seed", type=int, default=2024)
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "confusion.json"))
+    ap.add_argument("--shard", default="0/1", help="i/k: run every k-th record starting at i")
+    ap.add_argument("--merge", nargs="*", help="combine these shard files into --out and stop")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "diagnose_confusion.json"))
     a = ap.parse_args()
-    rows, secs = run(a.per_class, a.samples, a.seed, a.pairs)
-    stats = summarise(rows)
-    md = markdown(stats)
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps(dict(per_class=a.per_class, samples=a.samples, seed=a.seed,
-                                           seconds=secs, stats=stats, rows=rows, table=md), indent=1))
-    Path(a.out).with_suffix(".md").write_text(md + "\n")
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+
+    def save(rows, secs):
+        stats = summarise(rows)
+        md = markdown(stats)
+        meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed)
+        out.write_text(json.dumps(dict(**meta, seconds=secs, n_records=len(rows), totals=totals(rows), stats=stats,
+                                       rows=rows, table=md), indent=1))
+        return md
+
+    if a.merge is not None:
+        parts = [json.loads(Path(p).read_text()) for p in a.merge]
+        rows = [r for p in parts for r in p["rows"]]
+        md = save(rows, sum(p["seconds"] for p in parts))
+    else:
+        i, k = (int(x) for x in a.shard.split("/"))
+        rows = run(a, i, k, save)
+        md = save(rows, sum(r["seconds"] for r in rows))
     print(md)
-    print(f"{len(rows)} records in {secs:.0f} s")
+    print(f"{len(rows)} records")
 
 
 if __name__ == "__main__":

@@ -111,6 +111,8 @@ def execute(nb: nbformat.NotebookNode, *, small: bool, timeout: int = TIMEOUT_S)
             resources={"metadata": {"path": str(HERE)}},
         )
         client.execute()
+        # Recorded so a test can tell committed full-size runs from small test runs.
+        nb.metadata["piest"] = {"small": bool(small)}
     finally:
         if env_before is None:
             os.environ.pop(SMALL_ENV, None)

@@ -4,9 +4,12 @@ Play and stop operators, the PI operator and its analytic inverse, adaptive weig
 persistent-excitation analysis, gradient-based threshold fitting, and model-discrepancy diagnosis.
 """
 
+from ._batch import BatchStats as BatchStats
+from ._batch import run_batch as run_batch
 from ._certificate import Certificate as Certificate
 from ._certificate import convergence_certificate as convergence_certificate
 from ._certificate import information_form as information_form
+from ._certificate import noise_covariance as noise_covariance
 from ._estimators import AbstractEstimator as AbstractEstimator
 from ._estimators import Estimation as Estimation
 from ._estimators import estimate as estimate
@@ -21,6 +24,17 @@ from ._excitation import windowed_gram as windowed_gram
 from ._excitation import windowed_pe_levels as windowed_pe_levels
 from ._excitation import windowed_range as windowed_range
 from ._inverse import inverse as inverse
+from ._compensate import Compensation as Compensation
+from ._compensate import admissible_states as admissible_states
+from ._compensate import evaluate_compensation as evaluate_compensation
+from ._compensate import feedforward as feedforward
+from ._compensate import linear_feedforward as linear_feedforward
+from ._fit import PIFit as PIFit
+from ._fit import fit_pi as fit_pi
+from ._fit import unexcited as unexcited
+from ._fit import uniform_pi as uniform_pi
+from ._modelsize import ModelSize as ModelSize
+from ._modelsize import select_plays as select_plays
 from ._pi import AbstractHysteresisOperator as AbstractHysteresisOperator
 from ._pi import PIOperator as PIOperator
 from ._play import play as play

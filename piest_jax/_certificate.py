@@ -20,9 +20,28 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._custom_types import Regressor, Scalar, Signal, SignalLike, Weights
-from ._excitation import _regressor, pe_level
-from ._rls import Normalisation, check_p0, sample_weight, sqrt_p0
+from . import _checks
+from ._custom_types import Gram, Regressor, Scalar, Signal, SignalLike, Weights
+from ._excitation import _regressor, _window_args, pe_level
+from ._rls import NORMALISATIONS, Normalisation, check_p0, sample_weight, sqrt_p0
+
+
+def _check_dt(dt, normalisation: str) -> Array:
+    if normalisation not in NORMALISATIONS:
+        raise ValueError(f"unknown normalisation {normalisation!r}; choose one of {NORMALISATIONS}")
+    dt = _checks.as_float_array(dt, "dt")
+    if dt.ndim != 0:
+        raise ValueError(f"`dt` must be a scalar, got shape {dt.shape}")
+    if _checks.is_concrete(dt) and not (bool(jnp.isfinite(dt)) and float(dt) > 0):
+        raise ValueError(f"`dt` must be positive and finite, got {float(dt)}")
+    return dt
+
+
+def _check_p0_for(P0, n: int) -> Array:
+    P0 = check_p0(P0)
+    if P0.ndim == 2 and P0.shape[0] != n:
+        raise ValueError(f"`P0` is {P0.shape} but the regressor `H` has {n} columns")
+    return P0
 
 
 def _p0_matrix(P0, n, dtype):
@@ -52,9 +71,19 @@ def information_form(
     """
     H = _regressor(H)
     T, n = H.shape
-    y = jnp.asarray(y, H.dtype)
-    P0 = check_p0(P0)
+    y = _checks.finite(_checks.signal(y, "y"), "y").astype(H.dtype)
+    if y.shape[0] != T:
+        raise ValueError(f"`y` has {y.shape[0]} samples but the regressor `H` has {T}")
+    P0 = _check_p0_for(P0, n)
     w0 = jnp.zeros(n, H.dtype) if initial_weights is None else jnp.asarray(initial_weights, H.dtype)
+    if w0.shape != (n,):
+        raise ValueError(f"`initial_weights` has shape {w0.shape} but `H` has {n} columns")
+    return _information(H, y, P0, _check_dt(dt, normalisation), w0, normalisation)
+
+
+@eqx.filter_jit
+def _information(H, y, P0, dt, w0, normalisation: str):
+    n = H.shape[1]
     c = _sample_weights(H, dt, normalisation)
     A = jnp.cumsum(c[:, None, None] * H[:, :, None] * H[:, None, :], axis=0)
     b = jnp.cumsum((c * y)[:, None] * H, axis=0)
@@ -70,8 +99,40 @@ def _sample_weights(H: Regressor, dt, normalisation: str) -> Signal:
     return jax.vmap(lambda h: sample_weight(h, dt, normalisation))(H).astype(H.dtype)
 
 
+def noise_covariance(
+    H: Regressor, P0, dt, noise_std, *, normalisation: Normalisation = "paper"
+) -> Gram:
+    """Covariance of the final `ContinuousRLS` estimate when white noise is added to y.
+
+    From the closed form, Ŵ_T − E[Ŵ_T] = R_T⁻¹ Σ_k c_k h_k ε_k, so for ε_k ~ N(0, σ²)
+
+        Cov(Ŵ_T) = σ² R_T⁻¹ (Σ_k c_k² h_k h_kᵀ) R_T⁻¹,   R_T = P0⁻¹ + Σ_k c_k h_k h_kᵀ,
+
+    and the mean is the noise-free estimate (which the certificate bounds). It is the reference
+    for the Monte Carlo spread of the batch experiments.
+
+    **Arguments:** `H` (T, n); `P0`, `dt`, `normalisation` as in `ContinuousRLS`; `noise_std` σ.
+
+    **Returns:** (n, n), the covariance of the estimate after the last sample.
+    """
+    H = _regressor(H)
+    _, n = H.shape
+    P0 = _check_p0_for(P0, n)
+    c = _sample_weights(H, _check_dt(dt, normalisation), normalisation)
+    R = jnp.linalg.inv(_p0_matrix(P0, n, H.dtype)) + jnp.einsum("t,ti,tj->ij", c, H, H)
+    Q = jnp.einsum("t,ti,tj->ij", c**2, H, H)
+    Rinv = jnp.linalg.inv(R)
+    sigma = _checks.as_float_array(noise_std, "noise_std")
+    if sigma.ndim != 0:
+        raise ValueError(f"`noise_std` must be a scalar, got shape {sigma.shape}")
+    if _checks.is_concrete(sigma) and not float(sigma) >= 0:
+        raise ValueError(f"`noise_std` must be non-negative, got {float(sigma)}")
+    cov = sigma.astype(H.dtype) ** 2 * (Rinv @ Q @ Rinv)
+    return 0.5 * (cov + cov.T)
+
+
 class Certificate(eqx.Module):
-    """Predicted bounds on ‖Ŵ_k − W‖ / ‖Ŵ_0 − W‖ for noise-free data, see [`convergence_certificate`][].
+    """Predicted bounds on ‖Ŵ_k − W‖ / ‖Ŵ_0 − W‖ (noise-free), see [`convergence_certificate`][].
 
     **Fields:** `gram_bound` (T,) from the accumulated information; `pe_bound` (T,) from the PE
     level alone; `c1`, the PE level over windows of `window` samples; `max_m2`, the largest m².
@@ -99,8 +160,16 @@ def convergence_certificate(
     The estimator's noise-free error stays below `gram_bound`, which stays below `pe_bound`.
     """
     H = _regressor(H)
+    _, n = H.shape
+    P0 = _check_p0_for(P0, n)
+    dt = _check_dt(dt, normalisation)
+    _window_args(H.shape[0], window, 1)  # a clear error for a bad window, before compiling
+    return _certificate(H, P0, dt, window, normalisation)
+
+
+@eqx.filter_jit
+def _certificate(H, P0, dt, window: int, normalisation: str) -> Certificate:
     T, n = H.shape
-    P0 = check_p0(P0)
     c = _sample_weights(H, dt, normalisation)
     A = jnp.cumsum(c[:, None, None] * H[:, :, None] * H[:, None, :], axis=0)
     r0 = jnp.linalg.eigvalsh(jnp.linalg.inv(_p0_matrix(P0, n, H.dtype)))

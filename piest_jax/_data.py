@@ -1,7 +1,6 @@
 """Loading measured (t, u, y) records from CSV or NPZ, with errors that name the file and row."""
 
 import dataclasses
-import io
 from importlib import resources
 from pathlib import Path
 
@@ -63,40 +62,73 @@ def _fail(source, msg, row=None):
     raise DataError(f"{where}: {msg}")
 
 
-def _find_header(lines, source):
+def _find_header(lines, source, required=("t", "u", "y")):
     for i, line in enumerate(lines[:_HEADER_SEARCH_LINES]):
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
         delim = max(_DELIMITERS, key=stripped.count)
         names = [c.strip().strip('"').strip("'").lower() for c in stripped.split(delim)]
-        if {"t", "u", "y"} <= set(names):
+        if set(required) <= set(names):
             return i, delim, names
     first = next((ln.strip() for ln in lines if ln.strip()), None)
     if first is None:
         _fail(source, "the file is empty")
+    for i, line in enumerate(lines[:_HEADER_SEARCH_LINES]):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        delim = max(_DELIMITERS, key=stripped.count)
+        names = [c.strip().strip('"').strip("'").lower() for c in stripped.split(delim)]
+        # A row of names (not numbers) that lacks some of t, u, y is a header missing columns.
+        if not any(_is_number(c) for c in names) and set(required) & set(names):
+            missing = [c for c in required if c not in names]
+            _fail(
+                source,
+                f"missing column(s) {', '.join(missing)}: the header has {', '.join(names)}",
+                i + 1,
+            )
+    listed = ", ".join(required[:-1]) + f" and {required[-1]}" if len(required) > 1 else required[0]
     _fail(
         source,
-        "no header row naming the columns t, u and y was found "
-        f"(first line: {first[:80]!r}); a header such as `t,u,y` is required",
+        f"no header row naming the column{'s' * (len(required) > 1)} {listed} was found "
+        f"(first line: {first[:80]!r}); a header such as `{','.join(required)}` is required",
     )
 
 
-def _parse_rows(lines, start, delim, ncol, source):
-    body = [(i, ln) for i, ln in enumerate(lines[start:], start=start) if ln.strip()]
-    body = [(i, ln) for i, ln in body if not ln.lstrip().startswith("#")]
-    if not body:
-        _fail(source, "the header is there but no data rows follow")
+def _is_number(text):
     try:
-        data = np.loadtxt(io.StringIO("\n".join(ln for _, ln in body)), delimiter=delim, ndmin=2)
-        if data.shape[1] == ncol:
-            return data, [i + 1 for i, _ in body]
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _parse_rows(lines, start, delim, names, source, *, trailing=False):
+    ncol = len(names)
+    # Line numbers (from 1) of the data rows, as one integer array: a long record costs 8 bytes a
+    # row here, not a Python object per row.
+    rows = np.fromiter(
+        (i + 1 for i in range(start, len(lines)) if not lines[i].lstrip().startswith("#") and lines[i].strip()),
+        dtype=np.int64,
+    )
+    if rows.size == 0:
+        _fail(source, "the header is there but no data rows follow")
+    usecols = range(ncol) if trailing else None
+    try:
+        # loadtxt skips the same blank and `#` lines as `rows` does.
+        data = np.loadtxt(lines[start:], delimiter=delim, ndmin=2, usecols=usecols, comments="#")
+        if data.shape == (rows.size, ncol):
+            return data, rows
     except ValueError:
         pass
     # Slow path only to say exactly which row is wrong.
-    rows = []
+    body = [(i - 1, lines[i - 1]) for i in rows.tolist()]
+    values = []
     for i, ln in body:
-        cells = [c.strip() for c in ln.split(delim)]
+        cells = [c.strip() for c in ln.split("#", 1)[0].split(delim)]
+        if trailing and len(cells) == ncol + 1 and not cells[-1]:
+            cells.pop()
         if len(cells) != ncol:
             _fail(source, f"expected {ncol} cells as in the header, found {len(cells)}", i + 1)
         vals = []
@@ -104,9 +136,9 @@ def _parse_rows(lines, start, delim, ncol, source):
             try:
                 vals.append(float(c))
             except ValueError:
-                _fail(source, f"cell {j + 1} is not a number: {c[:40]!r}", i + 1)
-        rows.append(vals)
-    return np.asarray(rows, dtype=np.float64), [i + 1 for i, _ in body]
+                _fail(source, f"cell {j + 1} is not a number: {c[:40]!r} (column `{names[j]}`)", i + 1)
+        values.append(vals)
+    return np.asarray(values, dtype=np.float64), [i + 1 for i, _ in body]
 
 
 def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resample):
@@ -117,13 +149,13 @@ def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resam
             row = rows[k] if rows is not None else None
             _fail(source, f"column `{name}` holds {col[k]} (NaN or inf are not data)", row)
     if len(t) < min_samples:
-        _fail(source, f"only {len(t)} samples; at least {min_samples} are needed")
+        _fail(source, f"only {len(t)} sample{'s' * (len(t) != 1)}; at least {min_samples} are needed")
     dt = np.diff(t)
     if np.any(dt <= 0):
         k = int(np.argmax(dt <= 0))
         row = rows[k + 1] if rows is not None else None
         what = "repeats" if dt[k] == 0 else "goes backwards"
-        _fail(source, f"time is not strictly increasing: t = {t[k + 1]!r} {what}", row)
+        _fail(source, f"time is not strictly increasing: t = {float(t[k + 1]):.10g} {what}", row)
     step = float(np.median(dt))
     dev = np.abs(dt - step) / step
     if np.any(dev > dt_tolerance):
@@ -138,6 +170,16 @@ def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resam
                 row,
             )
         n = int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1
+        if n > 10 * len(t):
+            # Interpolating across a gap this long would invent most of the record.
+            k = int(np.argmax(dt))
+            row = rows[k + 1] if rows is not None else None
+            _fail(
+                source,
+                f"a gap of {dt[k]:.6g} against the median step {step:.6g} is too long to "
+                f"resample across ({n} grid points from {len(t)} samples); split the record",
+                row,
+            )
         grid = t[0] + step * np.arange(n)
         interp = lambda c: np.interp(grid, t, c)  # noqa: E731
         return grid, interp(u), interp(y), {k: interp(v) for k, v in extras.items()}
@@ -167,34 +209,87 @@ def load_record(
     where it applies, and the problem: missing columns, non-numeric cells, NaN/inf, too few
     samples, time not strictly increasing, non-uniform sampling, mismatched lengths.
     """
+    path, source = _existing(path)
+    opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample)
+    if path.suffix.lower() == ".npz":
+        return _load_npz(path, source, **opts)
+    cols, rows = _read_csv(path, source, ("t", "u", "y"))
+    t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
+    t, u, y, extras = _validate(t, u, y, cols, source, rows, **opts)
+    return Record(t, u, y, extras, source)
+
+
+def _existing(path):
     path = Path(path)
     source = str(path)
     if not path.exists():
         _fail(source, "no such file")
     if path.is_dir():
         _fail(source, "is a folder, not a data file")
-    opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample)
-    if path.suffix.lower() == ".npz":
-        return _load_npz(path, source, **opts)
+    return path, source
+
+
+def _read_csv(path, source, required):
+    """Columns by (lower-case) name and the file's line number of each data row."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         _fail(source, "is not a text (UTF-8) CSV file")
     lines = text.splitlines()
-    h, delim, names = _find_header(lines, source)
+    del text
+    h, delim, names = _find_header(lines, source, required)
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         _fail(source, f"duplicated column name(s) in the header: {', '.join(dupes)}", h + 1)
-    data, rows = _parse_rows(lines, h + 1, delim, len(names), source)
-    cols = {n: data[:, j].copy() for j, n in enumerate(names)}
-    t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
-    t, u, y, extras = _validate(t, u, y, cols, source, rows, **opts)
-    return Record(t, u, y, extras, source)
+    # A delimiter at the end of every line (common in instrument exports) is not a column.
+    trailing = lines[h].rstrip(" \r\n").endswith(delim)
+    if trailing and len(names) > len(required) and names[-1] == "":
+        names = names[:-1]
+    data, rows = _parse_rows(lines, h + 1, delim, names, source, trailing=trailing)
+    return {n: data[:, j].copy() for j, n in enumerate(names)}, rows
+
+
+def load_columns(path, required=("t",), *, min_samples: int = 2) -> dict:
+    """Read named columns from a CSV, with the same tolerance and messages as [`load_record`][].
+
+    For files that are not (t, u, y) records, e.g. a desired output trajectory. The required
+    columns must be finite; a required `t` must be strictly increasing (uniform steps are not
+    needed).
+
+    **Arguments:**
+
+    - `path`: the CSV file (any of `,` `;` tab as delimiter; preamble and `#` lines skipped).
+    - `required`: the column names that must be in the header (lower case).
+    - `min_samples`: fewer data rows than this are rejected.
+
+    **Returns:** a dict from lower-case column name to a float64 array (T,). Raises
+    [`DataError`][] naming the file, the row and the problem.
+    """
+    path, source = _existing(path)
+    required = tuple(required)
+    cols, rows = _read_csv(path, source, required)
+    for name in required:
+        bad = ~np.isfinite(cols[name])
+        if bad.any():
+            k = int(np.argmax(bad))
+            _fail(source, f"column `{name}` holds {cols[name][k]} (NaN or inf are not data)", rows[k])
+    n = len(rows)
+    if n < min_samples:
+        _fail(source, f"only {n} sample{'s' * (n != 1)}; at least {min_samples} are needed")
+    if "t" in required:
+        dt = np.diff(cols["t"])
+        if np.any(dt <= 0):
+            k = int(np.argmax(dt <= 0))
+            what = "repeats" if dt[k] == 0 else "goes backwards"
+            t = float(cols["t"][k + 1])
+            _fail(source, f"time is not strictly increasing: t = {t:.10g} {what}", rows[k + 1])
+    return cols
 
 
 def _load_npz(path, source, **opts):
     try:
-        with np.load(path, allow_pickle=False) as z:
+        # Our own handle: np.load leaves its file open when the archive is corrupt.
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
             arrays = {k: np.asarray(z[k]) for k in z.files}
     except Exception as e:  # a corrupt archive can raise many kinds of error
         _fail(source, f"cannot be read as NPZ ({type(e).__name__}: {e})")
@@ -207,6 +302,8 @@ def _load_npz(path, source, **opts):
             if k in ("t", "u", "y"):
                 _fail(source, f"array `{k}` must be one-dimensional, got shape {v.shape}")
             continue
+        if np.issubdtype(v.dtype, np.complexfloating):
+            _fail(source, f"array `{k}` is complex (dtype {v.dtype}); store real values")
         if not np.issubdtype(v.dtype, np.number):
             _fail(source, f"array `{k}` is not numeric (dtype {v.dtype})")
         cols[k] = v.astype(np.float64)

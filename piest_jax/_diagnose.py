@@ -28,6 +28,7 @@ MIN_GAIN_NOISE = 0.4
 MIN_GAIN_REL = 0.03
 PARAM_PENALTY = 2.0  # held-out MSE is further charged PARAM_PENALTY * sigma^2 * p / N_heldout
 MAX_EFFECTS = 3
+_DELAY_GRID = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)  # in full-rate samples
 # Where one start is not enough: the dynamics' natural frequency (in units of ten times the input's
 # dominant frequency) and damping have local minima; the better fit on the fitting blocks is kept.
 _EXTRA_STARTS = {
@@ -85,7 +86,7 @@ def check_record(rec: Record) -> None:
     if not np.all(np.diff(rec.t) > 0):
         raise DataError(f"{src}: time stamps are not strictly increasing")
     du = np.ptp(rec.u)
-    if du <= 1e-9 * max(1.0, np.max(np.abs(rec.u))):
+    if du <= 1e-9 * np.max(np.abs(rec.u)):
         raise DataError(f"{src}: no excitation: the input u is constant, nothing can be identified")
     un = (rec.u - rec.u.min()) / du
     if _reversals(un) < 2:
@@ -93,7 +94,7 @@ def check_record(rec: Record) -> None:
             f"{src}: no excitation: the input never reverses direction, so no hysteresis loop "
             "is traced; record at least one rise and fall"
         )
-    if np.ptp(rec.y) <= 1e-9 * max(1.0, np.max(np.abs(rec.y))):
+    if np.ptp(rec.y) <= 1e-9 * np.max(np.abs(rec.y)):
         raise DataError(f"{src}: constant output: y does not change, there is nothing to model")
 
 
@@ -170,6 +171,12 @@ def _base_start(data, n):
     return th
 
 
+def _bucket(n):
+    """A padded length from a few sizes, so records of similar length share one compilation."""
+    fits = [b for b in _BUCKETS if b >= n]
+    return fits[0] if fits else int(np.ceil(n / _BUCKETS[-1])) * _BUCKETS[-1]
+
+
 def _blocks(n):
     return np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
 
@@ -181,7 +188,76 @@ def _score(pred_cur, pred_new, y, held, blocks):
     return float(np.mean(e_cur[held]) - np.mean(e_new[held])), float(t)
 
 
-def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.EFFECTS):
+def _delay_starts(theta, names, data, y, fit_mask, n):
+    """Two starts for the delay, each from the best of a log-spaced grid on the fitting blocks.
+
+    The delay enters through interpolation, so its error surface is rippled at the scale of a
+    sample and the solver alone can stall far from a delay of many samples. Worse, a plain PI fit
+    absorbs a delay by widening its loop, so the current fit is a poor start for a long delay. The
+    second start therefore goes back to the neutral threshold grid and, for each delay on the grid,
+    refits the weights and offset by linear least squares on the delayed play outputs.
+    """
+    import jax.numpy as jnp
+
+    from ._play import play
+
+    g = jnp.asarray(_effects.group_mask(names))
+    sl, base = _effects._sl("delay"), _effects._sl("base")
+    wsl = slice(base.start + _effects.N_PLAYS - 1, base.stop)
+    steps = float(data.delay_unit / data.dt)
+    neutral = _effects.initial_params()
+    r = np.asarray(_effects.thresholds_of(jnp.asarray(neutral)))
+    u = np.asarray(data.u)[:n]
+    X = np.asarray(play(u, r, u[0]))
+    idx = np.arange(n, dtype=float)
+    w = fit_mask.astype(float)
+    best_cur = best_new = None
+    for d in _DELAY_GRID:
+        th = theta.copy()
+        th[sl] = np.log(np.expm1(d))
+        pred = np.asarray(_effects.predict_jit(jnp.asarray(th), g, data))[:n]
+        sse = float(np.sum(((pred - y) ** 2)[fit_mask]))
+        if best_cur is None or sse < best_cur[0]:
+            best_cur = (sse, th)
+        Xd = np.column_stack([np.interp(idx - d * steps, idx, X[:, j]) for j in range(X.shape[1])] + [np.ones(n)])
+        coef, *_ = np.linalg.lstsq(Xd * w[:, None], y * w, rcond=None)
+        sse = float(np.sum(((Xd @ coef - y) ** 2)[fit_mask]))
+        if best_new is None or sse < best_new[0]:
+            th = theta.copy()
+            th[base] = neutral[base]
+            th[wsl] = coef
+            th[sl] = np.log(np.expm1(d))
+            best_new = (sse, th)
+    return [best_cur[1], best_new[1]]
+
+
+def _prune(named, theta, pred, run_fit, y, held, sigma2, n_held):
+    """Drop a named effect that a later one made redundant (backward elimination).
+
+    A first-order lag can stand in for a delay, a delay for a lag: when the later effect explains
+    what the earlier one did, the model without the earlier effect is as good on held-out blocks.
+    """
+    pruned = []
+    start = _effects.initial_params()
+    changed = len(named) > 1
+    while changed and len(named) > 1:
+        changed = False
+        mse = float(np.mean((pred[held] - y[held]) ** 2))
+        for e in list(named):
+            rest = [x for x in named if x != e]
+            th0 = theta.copy()
+            th0[_effects._sl(e)] = start[_effects._sl(e)]
+            th_r, pred_r = run_fit(th0, rest)
+            loss = float(np.mean((pred_r[held] - y[held]) ** 2)) - mse
+            bonus = PARAM_PENALTY * sigma2 * _effects.n_effect_params(e) / n_held
+            if loss - bonus < MIN_GAIN_NOISE * sigma2 or loss < MIN_GAIN_REL * mse:
+                named, theta, pred, changed = rest, th_r, pred_r, True
+                pruned.append(e)
+                break
+    return named, theta, pred, pruned
+
+
+def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.EFFECTS, refit: bool = True):
     """Run the naming loop on one identification record.
 
     **Arguments:**
@@ -189,6 +265,8 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.E
     - `rec`: the record (checked with `check_record`).
     - `max_effects`: stop after naming this many.
     - `candidates`: the effects to consider.
+    - `refit`: refit the base and final models on every sample (fitting and held-out blocks)
+      once the effects are chosen; without it the search's fits are returned.
 
     **Returns:** a dict with `effects` (named, in order), `rounds` (each candidate's held-out RMSE,
     gain and t statistic per round), `theta_base`, `theta_final`, `groups`, `scaling`, the noise
@@ -196,11 +274,14 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.E
     """
     import jax.numpy as jnp
 
+    candidates = list(candidates)
+    for c in candidates:
+        _effects.n_effect_params(c)
     check_record(rec)
     sc = scaling_of(rec)
     step = int(np.ceil(rec.n_samples / SEARCH_SAMPLES))
     n = len(rec.u[::step])
-    length = next(b for b in _BUCKETS if b >= n)
+    length = _bucket(n)
     blocks = _blocks(n)
     held = blocks % 2 == 1
     data = model_data(rec, sc, step=step, length=length, fit_w=(~held).astype(float))
@@ -215,7 +296,7 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.E
         return np.asarray(res.theta), pred
 
     theta, pred = run_fit(_base_start(data, n), [])
-    theta_base = theta
+    theta_base, pred_base = theta, pred
     named, rounds = [], []
     n_held = int(held.sum())
     start = _effects.initial_params()
@@ -227,9 +308,14 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.E
                 continue
             sl = _effects._sl(c)
             best_fit = None
+            starts = []
             for extra in _EXTRA_STARTS.get(c, [None]):
                 th0 = theta.copy()
                 th0[sl] = start[sl] if extra is None else extra
+                starts.append(th0)
+            if c == "delay":
+                starts = _delay_starts(theta, [*named, c], data, y, ~held, n)
+            for th0 in starts:
                 th_c, pred_c = run_fit(th0, [*named, c])
                 sse = float(np.sum(((pred_c - y) ** 2)[~held]))
                 if best_fit is None or sse < best_fit[0]:
@@ -257,14 +343,19 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.E
             break
         named.append(best)
         theta, pred = b["theta"], b["pred"]
+    named, theta, pred, pruned = _prune(named, theta, pred, run_fit, y, held, sigma2, n_held)
     # Final fits on every sample, warm-started from the search.
     data_all = model_data(rec, sc, step=step, length=length)
     g_b, g_f = (jnp.asarray(_effects.group_mask(x)) for x in ([], named))
-    theta_base = np.asarray(_effects.fit(jnp.asarray(theta_base), g_b, data_all).theta)
-    theta_final = np.asarray(_effects.fit(jnp.asarray(theta), g_f, data_all).theta)
+    theta_final = theta
+    if refit:
+        theta_base = np.asarray(_effects.fit(jnp.asarray(theta_base), g_b, data_all).theta)
+        theta_final = np.asarray(_effects.fit(jnp.asarray(theta), g_f, data_all).theta)
     return dict(
-        effects=named, rounds=rounds, theta_base=theta_base, theta_final=theta_final,
+        effects=named, pruned=pruned, rounds=rounds, theta_base=theta_base, theta_final=theta_final,
         scaling=sc, noise_std=sigma * sc.y_half, step=step,
+        heldout_rmse_base=float(np.sqrt(np.mean((pred_base[held] - y[held]) ** 2))) * sc.y_half,
+        heldout_rmse_final=float(np.sqrt(np.mean((pred[held] - y[held]) ** 2))) * sc.y_half,
     )
 
 
@@ -284,9 +375,10 @@ def evaluate(rec: Record, sc: Scaling, theta, names, *, transferable_only=False)
 
     if transferable_only:
         names = [e for e in names if e not in ("initial_state", "offset_drift")]
-    data = model_data(rec, sc)
+    data = model_data(rec, sc, length=_bucket(rec.n_samples))
     g = jnp.asarray(_effects.group_mask(names))
-    pred = np.asarray(_effects.predict_jit(jnp.asarray(theta), g, data)) * sc.y_half + sc.y_mid
+    pred = np.asarray(_effects.predict_jit(jnp.asarray(theta), g, data))[: rec.n_samples]
+    pred = pred * sc.y_half + sc.y_mid
     return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
 
 
@@ -315,14 +407,8 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
         noise_std_estimate=s["noise_std"],
         candidates={k: dict(v) for k, v in first.items()},
         rounds=s["rounds"],
-        heldout=dict(
-            baseline_rmse=s["rounds"][0]["current_heldout_rmse"] if s["rounds"] else None,
-            final_rmse=(
-                s["rounds"][-1]["candidates"][s["rounds"][-1]["best"]]["heldout_rmse"]
-                if s["rounds"] and s["rounds"][-1]["named"]
-                else s["rounds"][-1]["current_heldout_rmse"] if s["rounds"] else None
-            ),
-        ),
+        pruned=s["pruned"],
+        heldout=dict(baseline_rmse=s["heldout_rmse_base"], final_rmse=s["heldout_rmse_final"]),
         n_samples=rec.n_samples,
         search_step=s["step"],
         where=_locate.locate(rec.t, rec.u, rec.y, pred_b, s["noise_std"]),

@@ -123,7 +123,13 @@ def estimate(
     `eqx.error_if` runtime error).
     """
     H, y, w0 = _data(estimator, H, y, initial_weights)
+    return _scan(estimator, H, y, w0)
 
+
+# Compiled once per estimator type, static settings and data shape; the settings' values (P0, dt,
+# λ, ...) are traced, so sweeping them does not recompile.
+@eqx.filter_jit
+def _scan(estimator: AbstractEstimator, H, y, w0) -> Estimation:
     def body(state, hy):
         h, yk = hy
         state = estimator.step(state, h, yk)

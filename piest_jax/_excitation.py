@@ -8,6 +8,7 @@ sample means, (1/T0)∫ H Hᵀ dt ≈ mean_k h_k h_kᵀ, which is exact for the 
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
@@ -66,6 +67,13 @@ def windowed_gram(H: Regressor, window: int, *, stride: int = 1) -> Float[Array,
     **Returns:** (n_windows, n, n), the mean of h_k h_kᵀ over each window.
     """
     H = _regressor(H)
+    _window_args(H.shape[0], window, stride)
+    return _gram(H, window, stride)
+
+
+# The cores are compiled once per shape, window and stride (the public functions validate first).
+@eqx.filter_jit
+def _gram(H: Regressor, window: int, stride: int) -> Float[Array, "windows n n"]:
     T, n = H.shape
     window, stride, nw = _window_args(T, window, stride)
     outer = H[:, :, None] * H[:, None, :]
@@ -82,7 +90,14 @@ def windowed_pe_levels(H: Regressor, window: int, *, stride: int = 1) -> Float[A
 
     **Returns:** (n_windows,); a window whose value is (numerically) zero is not exciting.
     """
-    return jnp.linalg.eigvalsh(windowed_gram(H, window, stride=stride))[:, 0]
+    H = _regressor(H)
+    _window_args(H.shape[0], window, stride)
+    return _pe_levels(H, window, stride)
+
+
+@eqx.filter_jit
+def _pe_levels(H: Regressor, window: int, stride: int) -> Float[Array, " windows"]:
+    return jnp.linalg.eigvalsh(_gram(H, window, stride))[:, 0]
 
 
 def pe_level(H: Regressor, window: int, *, stride: int = 1) -> Scalar:
@@ -126,7 +141,13 @@ def windowed_range(u, window: int, *, stride: int = 1) -> Float[Array, "windows 
     if u.ndim not in (1, 2):
         raise ValueError(f"`u` must have shape (T,) or (T, n), got {u.shape}")
     u = _checks.finite(u, "u")
-    window, stride, nw = _window_args(u.shape[0], window, stride)
+    _window_args(u.shape[0], window, stride)
+    return _range(u, window, stride)
+
+
+@eqx.filter_jit
+def _range(u: Array, window: int, stride: int) -> Array:
+    _, stride, nw = _window_args(u.shape[0], window, stride)
     hi = _sliding(u, window, jnp.maximum)
     lo = _sliding(u, window, jnp.minimum)
     return (hi - lo)[:: stride][:nw]

@@ -116,5 +116,8 @@ def check_outputs(out_dir, names, force: bool) -> Path:
                 raise FileExistsError(
                     f"{out / name} already exists; pass --force to overwrite it"
                 )
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OSError(f"--out {out}: cannot create the folder ({e.strerror or e})") from None
     return out

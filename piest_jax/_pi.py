@@ -70,7 +70,7 @@ class PIOperator(AbstractHysteresisOperator):
         return self.thresholds.shape[0]
 
     def _input(self, u) -> Array:
-        u = _checks.signal(u)
+        u = _checks.finite(_checks.signal(u), "u")
         return u.astype(jnp.result_type(u, self.thresholds))
 
     def regressor(self, u: SignalLike) -> Regressor:

@@ -8,9 +8,12 @@ function plus a thin `lax.scan`. Because clamps compose into clamps,
 the same outputs also follow from `lax.associative_scan` in O(log T) depth. max and min only ever
 select one of their arguments, so both forms round identically: the outputs agree to the last bit.
 
-At a switching instant (the input touching u ± r) the output is not differentiable. JAX's max/min
-then share the gradient equally between the tied arguments, so a derivative taken exactly at a
-kink is the average of the one-sided derivatives; anywhere else it is exact.
+At a switching instant (a held state exactly on a bound u ± r) the output is not differentiable.
+JAX's max/min then share the gradient equally between the tied arguments, so with the scan a
+derivative taken exactly at a single kink is the average of the two one-sided derivatives; anywhere
+else it is exact. The associative form regroups the clamps, so at a kink it may return another
+one-sided combination; away from kinks both agree. A zero threshold lies on the boundary of r >= 0,
+so a derivative with respect to it is not a meaningful sensitivity.
 """
 
 from typing import Literal
@@ -83,7 +86,7 @@ def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
 
 
 def _prepare(u, r, x0, x0_name="x0"):
-    u = _checks.signal(u)
+    u = _checks.finite(_checks.signal(u), "u")
     r = _checks.thresholds(r, "r")
     n = None if r.ndim == 0 else r.shape[0]
     x0 = _checks.per_play(x0, n, x0_name)
@@ -146,5 +149,7 @@ def stop(
     **Returns:** the stop output, (T,) or (T, n).
     """
     u, r, rv, e0v = _prepare(u, r, e0, "e0")
-    out = u[:, None] - _bank(u, rv, u[0] - e0v, method)
+    # u - H lies in [-r, r] exactly, but its rounding can step past r by an ulp; the clip restores
+    # the bound without changing any value that was inside it.
+    out = jnp.clip(u[:, None] - _bank(u, rv, u[0] - e0v, method), -rv, rv)
     return out[:, 0] if r.ndim == 0 else out

@@ -116,13 +116,18 @@ class ContinuousRLS(AbstractEstimator):
 
     def __init__(self, P0, dt, *, normalisation: Normalisation = "paper"):
         if normalisation not in NORMALISATIONS:
-            raise ValueError(f"unknown normalisation {normalisation!r}; choose one of {NORMALISATIONS}")
+            raise ValueError(
+                f"unknown normalisation {normalisation!r}; choose one of {NORMALISATIONS}"
+            )
         self.P0 = check_p0(P0)
         dt = _checks.as_float_array(dt, "dt")
         if dt.ndim != 0:
             raise ValueError(f"`dt` must be a scalar, got shape {dt.shape}")
-        if _checks.is_concrete(dt) and not (float(dt) > 0 and bool(jnp.isfinite(dt))):
-            raise ValueError(f"`dt` must be positive and finite, got {float(dt)}")
+        if _checks.is_concrete(dt):
+            if not (float(dt) > 0 and bool(jnp.isfinite(dt))):
+                raise ValueError(f"`dt` must be positive and finite, got {float(dt)}")
+        else:
+            dt = eqx.error_if(dt, ~((dt > 0) & jnp.isfinite(dt)), "`dt` must be positive and finite")
         self.dt = dt
         self.normalisation = normalisation
 

@@ -52,3 +52,54 @@ def reachable_states(r, rng, length=40, scale=3.0):
     """Play states some input history produces: the final states of a random walk."""
     u = np.cumsum(rng.normal(0.0, scale, size=length))
     return play(u, r, 0.0)[-1]
+
+
+def pi_inverse(v, r, w, x0=0.0, iters=200):
+    """The input u with PI output v, found sample by sample by bisection on the forward step.
+
+    At each sample the forward output is a continuous, increasing function of u_t (slope w_1 +
+    ... + w_i > 0 once plays 1..i move), so bisection on it recovers u_t without using the
+    inverse operator's closed form.
+    """
+    v = np.asarray(v, dtype=np.float64)
+    r = np.atleast_1d(np.asarray(r, dtype=np.float64))
+    w = np.asarray(w, dtype=np.float64)
+    x = np.broadcast_to(np.asarray(x0, dtype=np.float64), r.shape).copy()
+    u = np.empty(len(v))
+
+    def forward(ut):
+        return float(w @ np.maximum(ut - r, np.minimum(ut + r, x)))
+
+    for t in range(len(v)):
+        lo, hi = -1.0, 1.0
+        while forward(lo) > v[t]:
+            lo *= 2.0
+        while forward(hi) < v[t]:
+            hi *= 2.0
+        for _ in range(iters):
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            if forward(mid) < v[t]:
+                lo = mid
+            else:
+                hi = mid
+        u[t] = 0.5 * (lo + hi)
+        x = np.maximum(u[t] - r, np.minimum(u[t] + r, x))
+    return u
+
+
+def branches(u, r, x0=0.0):
+    """Which side of each play's clamp acts at each sample: -1 lower (u - r), +1 upper (u + r),
+    0 hold; and the smallest distance between a held state and a bound (how far from a kink)."""
+    u = np.asarray(u, dtype=np.float64)
+    r = np.atleast_1d(np.asarray(r, dtype=np.float64))
+    x = np.broadcast_to(np.asarray(x0, dtype=np.float64), r.shape).copy()
+    codes = np.zeros((len(u), len(r)), dtype=int)
+    margin = np.inf
+    for t in range(len(u)):
+        lo, hi = u[t] - r, u[t] + r
+        margin = min(margin, np.min(np.abs(x - lo)), np.min(np.abs(x - hi)))
+        codes[t] = np.where(x < lo, -1, np.where(x > hi, 1, 0))
+        x = np.clip(x, lo, hi)
+    return codes, margin

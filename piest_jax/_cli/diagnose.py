@@ -4,7 +4,8 @@ import numpy as np
 
 from .. import _io
 from .._data import load_record
-from ._common import add_output_options
+from .._effects import EFFECTS
+from ._common import CLIError, add_output_options
 
 NAME = "diagnose"
 HELP = "name the effects a plain PI model misses and show the gap shrink"
@@ -29,17 +30,32 @@ def add_arguments(p):
     p.add_argument("data", metavar="DATA.csv", help="the identification record (t, u, y)")
     p.add_argument("--validate", metavar="VAL.csv", help="a second record to evaluate both models on")
     p.add_argument("--max-effects", type=int, default=3, help="name at most this many (default 3)")
+    p.add_argument(
+        "--candidates", metavar="NAMES", default=",".join(EFFECTS),
+        help="comma-separated effects to try (default: all seven)",
+    )
     p.add_argument("--json", action="store_true", help="print only the path of report.json")
     add_output_options(p, "piest-diagnose")
 
 
 def run(args) -> int:
-    from .._diagnose import diagnose
+    from .._diagnose import check_record, diagnose
 
+    cands = [c.strip() for c in args.candidates.split(",") if c.strip()]
+    bad = [c for c in cands if c not in EFFECTS]
+    if bad or not cands:
+        raise CLIError(f"--candidates: unknown effect {bad[0]!r} (choose from {', '.join(EFFECTS)})"
+                       if bad else "--candidates: give at least one effect")
+    if args.max_effects < 1:
+        raise CLIError(f"--max-effects must be at least 1, got {args.max_effects}")
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     rec = load_record(args.data)
     val = load_record(args.validate) if args.validate else None
-    rep = diagnose(rec, val, max_effects=args.max_effects)
+    # Refuse unusable records before the (long) search, not after it.
+    check_record(rec)
+    if val is not None:
+        check_record(val)
+    rep = diagnose(rec, val, max_effects=args.max_effects, candidates=cands)
     arrays = rep.pop("_arrays")
     rep["data"] = str(args.data)
     if val is not None:

@@ -20,6 +20,9 @@ thresholds (0, 10/3, 20/3), weights (1, 3, 5).
 example:  piest simulate --input triangle --amplitude 5 --thresholds 0,1,2,3 --out sim"""
 
 OUTPUTS = ("simulate.csv", "loop.png", "simulate.json")
+MAX_SAMPLES = 10_000_000
+MAX_VALUES = 50_000_000  # samples x plays in the CSV (about 1 GB of text)
+MAX_PLOTTED_PLAYS = 12
 
 
 def add_arguments(p):
@@ -67,6 +70,14 @@ def _input(args):
         return rec.t, rec.u, {"kind": "csv", "file": str(args.csv)}
     if args.csv:
         raise CLIError(f"--csv is only used with --input csv, not --input {args.input}")
+    n = args.duration / args.dt + 1
+    if n < 2:
+        raise CLIError(f"--dt {args.dt:g} is longer than --duration {args.duration:g}: no signal")
+    if n > MAX_SAMPLES:
+        raise CLIError(
+            f"--duration {args.duration:g} / --dt {args.dt:g} gives {n:.3g} samples; at most "
+            f"{MAX_SAMPLES:.0e} are written (raise --dt or shorten --duration)"
+        )
     t = np.asarray(_signals.time_grid(args.duration, args.dt))
     a, f = args.amplitude, args.frequency
     if args.input == "multisine":
@@ -113,8 +124,22 @@ def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     op = _operator(args)
     t, u, desc = _input(args)
+    if len(t) * op.n_plays > MAX_VALUES:
+        raise CLIError(
+            f"{len(t)} samples x {op.n_plays} plays is more than the {MAX_VALUES:.0e} values "
+            "simulate.csv may hold; use fewer plays or samples"
+        )
     H = np.asarray(op.regressor(u))
     y = np.asarray(op(u))
+    for name, v in (("input u", u), ("output y", y), ("play outputs", H)):
+        # ptp catches both inf and a range too wide for float64 (which the plot cannot draw).
+        with np.errstate(over="ignore", invalid="ignore"):
+            wide = not np.isfinite(np.ptp(v))
+        if wide:
+            raise CLIError(
+                f"the {name} overflows float64 (largest magnitude {np.max(np.abs(v)):.3g}); "
+                "reduce --amplitude, --offset, --weights or --initial-states"
+            )
     cols = {"t": t, "u": u, "y": y} | {f"x_{j + 1}": H[:, j] for j in range(H.shape[1])}
     written = [_io.write_csv(out / "simulate.csv", cols)]
     written.append(_io.save_figure(_figure(t, u, y, H, op), out / "loop.png", dpi=120))
@@ -143,10 +168,11 @@ def _figure(t, u, y, H, op):
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
     a1.plot(u, y, lw=1)
     a1.set(xlabel="input u", ylabel="output y", title="PI operator loop")
-    for j in range(H.shape[1]):
+    # Many plays would make an unreadable (and slow) plot: draw an even selection of them.
+    shown = np.unique(np.linspace(0, H.shape[1] - 1, min(H.shape[1], MAX_PLOTTED_PLAYS)).round())
+    for j in shown.astype(int):
         a2.plot(t, H[:, j], lw=1, label=f"r = {float(op.thresholds[j]):.3g}")
     a2.set(xlabel="time [s]", ylabel="play output", title="play outputs")
-    if H.shape[1] <= 10:
-        a2.legend(fontsize=8)
+    a2.legend(fontsize=8)
     fig.tight_layout()
     return fig

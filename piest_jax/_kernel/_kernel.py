@@ -6,38 +6,70 @@ they are needed. The forward outputs equal the pure-JAX scan: H to the last bit 
 operations), y up to the order in which the n weighted plays are summed.
 
 Gradients go through `jax.custom_vjp`. The differentiated forward pass also records, per step and
-play, which branch of the clamp was active (lower bound u - r, upper bound u + r, or hold), and the
-backward kernel runs the adjoint recurrence backwards in time over those codes. At a kink (the old
+play, which branch of the clamp was active (lower bound u - r, upper bound u + r, or hold; two bits
+per play and step), and the backward kernel runs the adjoint recurrence backwards in time over
+those codes. At a kink (the old
 state exactly equal to a bound) the kernel counts the step as a hold, so the derivative is the
 one-sided derivative in which the play does not move; the pure-JAX scan instead averages the two
-sides. Both agree everywhere else.
+sides. Likewise for a zero threshold, where both bounds equal u: the kernel gives the threshold
+derivative from the admissible side r > 0, the scan the average of both sides (zero). Both agree
+everywhere else.
 
 Batching (`jax.vmap`) hands the whole batch to one kernel call (`vmap_method="broadcast_all"`), which
 splits the signals across the CPU cores (`PIEST_KERNEL_THREADS` caps the thread count).
 
-When the extension was not compiled (no C++ compiler at install time), `method="kernel"` falls back
-to the scan and warns once per process; `method="auto"` falls back silently.
+When the extension was not compiled (no C++ compiler at install time, or PIEST_KERNEL_BUILD=0), does
+not load, or was compiled for instructions this CPU lacks, `method="kernel"` and `method="auto"` on
+a CPU backend fall back to the scan and warn once per process.
 """
 
 import functools
+import importlib
+import importlib.util
 import warnings
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-try:
-    from . import _play_kernel as _ext
-except ImportError as _err:  # the optional extension was not built
-    _ext = None
-    _IMPORT_ERROR: str = str(_err)
-else:
-    _IMPORT_ERROR = ""
+def _missing_isa(required) -> list[str]:
+    """The instruction-set extensions in `required` that this CPU lacks (Linux; else none)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = next((ln.split(":", 1)[1].split() for ln in f if ln.startswith("flags")), None)
+    except OSError:
+        return []
+    return [] if flags is None else [name for name in required if name not in flags]
+
+
+def _load():
+    name = __package__ + "._play_kernel"
+    if importlib.util.find_spec(name) is None:
+        return None, "it was not built when the package was installed"
+    try:
+        ext = importlib.import_module(name)
+    except ImportError as err:  # built, but unloadable here (another Python or jaxlib, say)
+        return None, f"it does not load: {err}"
+    missing = _missing_isa(ext.isa())
+    if missing:  # a binary built on another machine: running it would crash the process
+        return None, (
+            f"it was compiled for {', '.join(missing)}, which this CPU lacks; reinstall on this "
+            "machine, or with PIEST_KERNEL_NATIVE=0 for a portable build"
+        )
+    return ext, ""
+
+
+_ext, _IMPORT_ERROR = _load()
 
 _DTYPES = {jnp.dtype(jnp.float32): "f32", jnp.dtype(jnp.float64): "f64"}
 
 
 @functools.cache
+def _register(ext) -> None:
+    for name, capsule in ext.registrations().items():
+        jax.ffi.register_ffi_target(name, capsule, platform="cpu")
+
+
 def available() -> bool:
     """True when the compiled kernel is importable; registers its FFI targets on first call.
 
@@ -45,8 +77,7 @@ def available() -> bool:
     """
     if _ext is None:
         return False
-    for name, capsule in _ext.registrations().items():
-        jax.ffi.register_ffi_target(name, capsule, platform="cpu")
+    _register(_ext)
     return True
 
 
@@ -54,29 +85,28 @@ def available() -> bool:
 def _warn_fallback() -> None:
     # functools.cache makes this fire once per process.
     warnings.warn(
-        "piest_jax: the compiled play kernel is not available "
-        f"({_IMPORT_ERROR or 'not built'}); method='kernel' falls back to the pure-JAX scan. "
-        "Reinstall with a C++ compiler present to build it.",
+        f"piest_jax: the compiled play kernel is not available ({_IMPORT_ERROR}); the play bank "
+        "falls back to the pure-JAX scan. Reinstall with a C++ compiler present (and PIEST_KERNEL_BUILD unset) to build it.",
         RuntimeWarning,
-        stacklevel=3,
+        stacklevel=4,
     )
 
 
 def use_kernel(method: str) -> bool:
     """Whether a play-bank `method` runs the compiled kernel here.
 
-    `"kernel"` asks for it (warning once if it is missing); `"auto"` takes it on a CPU backend when
-    it is built and the scan otherwise.
+    `"kernel"` asks for it; `"auto"` takes it on a CPU backend and the scan on others. On a CPU
+    backend without the compiled extension both fall back to the scan, warning once per process.
 
     **Arguments:** `method`, the play method name.
 
     **Returns:** True to call the kernel, False to use the scan.
     """
-    if method == "auto":
-        return jax.default_backend() == "cpu" and available()
-    if method != "kernel":
+    if method not in ("kernel", "auto"):
         return False
     if jax.default_backend() != "cpu":
+        if method == "auto":
+            return False
         raise ValueError(
             f"method='kernel' runs on CPU only, but the default backend is "
             f"{jax.default_backend()!r}; use method='scan' or 'auto'"
@@ -97,9 +127,11 @@ def _suffix(x: Array) -> str:
         ) from None
 
 
-def _padded(n: int) -> int:
+def _code_bytes(n: int, dtype) -> int:
+    # Per step, two bit masks (upper / lower bound active) per 32-byte vector of padded plays.
     lanes = _ext.lanes()
-    return -(-n // lanes) * lanes
+    padded = -(-n // lanes) * lanes
+    return 2 * padded // (32 // jnp.dtype(dtype).itemsize)
 
 
 def _call(kind: str, x: Array, shapes, *args):
@@ -112,26 +144,51 @@ def _sds(shape, dtype):
     return jax.ShapeDtypeStruct(shape, dtype)
 
 
-@jax.custom_vjp
+def _validate(u: Array, r: Array, **per_play: Array) -> None:
+    # The FFI handlers trust their buffers, so every shape and dtype is checked here, at trace time.
+    if u.ndim != 1 or u.shape[0] < 1:
+        raise ValueError(f"the play kernel needs one signal u of shape (T,), T >= 1, got {u.shape}")
+    if r.ndim != 1 or r.shape[0] < 1:
+        raise ValueError(f"the play kernel needs thresholds r of shape (n,), n >= 1, got {r.shape}")
+    _suffix(u)
+    for name, a in (("r", r), *per_play.items()):
+        if a.shape != r.shape:
+            raise ValueError(f"the play kernel needs `{name}` of shape {r.shape}, got {a.shape}")
+        if a.dtype != u.dtype:
+            raise ValueError(
+                f"the play kernel needs one dtype for all arguments: u is {u.dtype}, "
+                f"`{name}` is {a.dtype}"
+            )
+
+
 def bank(u: Array, r: Array, x0: Array) -> Array:
     """The play outputs H (T, n) for input `u` (T,), thresholds `r` (n,) and states `x0` (n,).
 
-    All three must share one float dtype. Composes with `jit`, `vmap` and reverse-mode `grad`.
+    All three must share one float dtype (float32 or float64); anything else raises `ValueError`.
+    Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    respect to all three arguments.
 
     **Arguments:**
 
     - `u`: the input (T,).
-    - `r`: the thresholds (n,).
+    - `r`: the thresholds (n,), non-negative.
     - `x0`: the initial states (n,).
 
     **Returns:** H (T, n), equal to the pure-JAX scan to the last bit.
     """
+    u, r, x0 = (jnp.asarray(a) for a in (u, r, x0))
+    _validate(u, r, x0=x0)
+    return _bank(u, r, x0)
+
+
+@jax.custom_vjp
+def _bank(u, r, x0):
     return _call("bank_fwd", u, _sds((u.shape[0], r.shape[0]), u.dtype), u, r, x0)
 
 
 def _bank_fwd(u, r, x0):
     t, n = u.shape[0], r.shape[0]
-    shapes = (_sds((t, n), u.dtype), _sds((t, _padded(n)), jnp.int8))
+    shapes = (_sds((t, n), u.dtype), _sds((t, _code_bytes(n, u.dtype)), jnp.uint8))
     h, codes = _call("bank_fwd_res", u, shapes, u, r, x0)
     return h, (u, r, x0, codes)
 
@@ -142,30 +199,38 @@ def _bank_bwd(res, gh):
     return tuple(_call("bank_bwd", u, shapes, u, r, x0, codes, gh.astype(u.dtype)))
 
 
-bank.defvjp(_bank_fwd, _bank_bwd)
+_bank.defvjp(_bank_fwd, _bank_bwd)
 
 
-@jax.custom_vjp
 def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
     """The fused PI output y_t = Σ_j w_j H_{r_j}[u](t), without materialising H.
 
-    All four must share one float dtype. Composes with `jit`, `vmap` and reverse-mode `grad`.
+    All four must share one float dtype (float32 or float64); anything else raises `ValueError`.
+    Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    respect to all four arguments.
 
     **Arguments:**
 
     - `u`: the input (T,).
-    - `r`: the thresholds (n,).
+    - `r`: the thresholds (n,), non-negative.
     - `x0`: the initial states (n,).
     - `w`: the weights (n,).
 
-    **Returns:** y (T,). The n terms are summed in a fixed order (16 partial sums over blocks of
-    plays, then a halving tree), so y can differ from `H @ w` in the last bits.
+    **Returns:** y (T,). The n terms are summed in a fixed order (lane-wise partial sums over
+    blocks of plays, then a halving tree), so y can differ from `H @ w` in the last bits.
     """
+    u, r, x0, w = (jnp.asarray(a) for a in (u, r, x0, w))
+    _validate(u, r, x0=x0, w=w)
+    return _pi(u, r, x0, w)
+
+
+@jax.custom_vjp
+def _pi(u, r, x0, w):
     return _call("pi_fwd", u, _sds(u.shape, u.dtype), u, r, x0, w)
 
 
 def _pi_fwd(u, r, x0, w):
-    shapes = (_sds(u.shape, u.dtype), _sds((u.shape[0], _padded(r.shape[0])), jnp.int8))
+    shapes = (_sds(u.shape, u.dtype), _sds((u.shape[0], _code_bytes(r.shape[0], u.dtype)), jnp.uint8))
     y, codes = _call("pi_fwd_res", u, shapes, u, r, x0, w)
     return y, (u, r, x0, w, codes)
 
@@ -176,4 +241,4 @@ def _pi_bwd(res, gy):
     return tuple(_call("pi_bwd", u, shapes, u, r, x0, w, codes, gy.astype(u.dtype)))
 
 
-pi_output.defvjp(_pi_fwd, _pi_bwd)
+_pi.defvjp(_pi_fwd, _pi_bwd)

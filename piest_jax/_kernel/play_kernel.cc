@@ -5,19 +5,27 @@
 // bank are independent lanes: the inner loops run across plays over contiguous arrays padded to a
 // multiple of kLanes, which the compiler turns into SIMD code without branches.
 //
-// The fused PI output y_t = sum_j w_j x_{t,j} is summed in a fixed order (kLanes partial sums over
-// blocks of plays, then a halving tree), so a build gives the same bits on every call.
+// The fused PI output y_t = sum_j w_j x_{t,j} is summed in a fixed order (lane-wise partial sums
+// over the vectors of a chunk of plays, then a halving tree, then chunk after chunk), so a build
+// gives the same bits on every call.
 //
-// Backward pass. Each step records which branch was active: -1 when the lower bound u - r won,
-// +1 when the upper bound u + r won, 0 when the state was held. At a tie (the old state equal to a
-// bound) the step counts as held. The adjoint is a reverse recurrence: nu_j accumulates the output
-// cotangents of play j over the current run of held steps; at an active step it flows to u_t
-// (and with sign s to r_j) and resets; what is left at t = 0 flows to the initial state.
+// Backward pass. Each step records which branch was active, as two bit masks per vector of plays
+// (bit i of the first byte: lane i was moved by a bound, u + r or u - r; of the second: the bound
+// was the lower one, u - r; neither: the state was held). At a tie (the old state equal to a bound)
+// the step counts as held. Bit masks keep the residual small (2 bytes per 8 float plays per step)
+// and turn back into lane masks with one table lookup each. The adjoint is a reverse recurrence:
+// nu_j accumulates the output cotangents of play j over the current run of held steps; at an active
+// step it flows to u_t (and with sign +1 on the upper, -1 on the lower bound to r_j) and resets;
+// what is left at t = 0 flows to the initial state.
 //
 // Every buffer may carry leading batch dimensions (from vmap); they are flattened into B signals
 // and split across threads.
 
 #include <Python.h>
+
+#if defined(__AVX__) || defined(__SSE2__)
+#include <immintrin.h>
+#endif
 
 #include <algorithm>
 #include <cstdint>
@@ -25,6 +33,7 @@
 #include <cstring>
 #include <functional>
 #include <thread>
+#include <type_traits>
 #include <vector>
 
 #include "xla/ffi/api/ffi.h"
@@ -47,15 +56,71 @@ struct Vec;
 template <>
 struct Vec<float> {
   typedef float type __attribute__((vector_size(32)));
-  typedef int8_t bytes __attribute__((vector_size(8)));
+  typedef int32_t mask __attribute__((vector_size(32)));
   static constexpr int kWidth = 8;
 };
 template <>
 struct Vec<double> {
   typedef double type __attribute__((vector_size(32)));
-  typedef int8_t bytes __attribute__((vector_size(4)));
+  typedef int64_t mask __attribute__((vector_size(32)));
   static constexpr int kWidth = 4;
 };
+
+// Bytes of branch codes per step for np padded plays: two bit masks per vector.
+template <typename T>
+int64_t CodeBytes(int64_t np) {
+  return 2 * np / Vec<T>::kWidth;
+}
+
+// Lane mask (all ones or zero per lane) -> one bit per lane.
+template <typename T>
+inline uint8_t ToBits(typename Vec<T>::mask m) {
+#if defined(__AVX__)
+  if constexpr (sizeof(T) == 4) {
+    return static_cast<uint8_t>(_mm256_movemask_ps(reinterpret_cast<__m256>(m)));
+  } else {
+    return static_cast<uint8_t>(_mm256_movemask_pd(reinterpret_cast<__m256d>(m)));
+  }
+#elif defined(__SSE2__)
+  __m128 half[2];
+  std::memcpy(half, &m, sizeof(m));
+  if constexpr (sizeof(T) == 4) {
+    return static_cast<uint8_t>(_mm_movemask_ps(half[0]) | (_mm_movemask_ps(half[1]) << 4));
+  } else {
+    return static_cast<uint8_t>(_mm_movemask_pd(_mm_castps_pd(half[0])) |
+                                (_mm_movemask_pd(_mm_castps_pd(half[1])) << 2));
+  }
+#else
+  uint8_t bits = 0;
+  for (int i = 0; i < Vec<T>::kWidth; ++i) bits |= static_cast<uint8_t>(m[i] != 0) << i;
+  return bits;
+#endif
+}
+
+// One bit per lane -> lane mask, by table lookup (one load instead of broadcast, and, compare).
+// kSign selects a table whose set lanes hold only the sign bit (to flip signs with an xor).
+template <typename T, bool kSign>
+struct BitTable {
+  static constexpr int kWidth = Vec<T>::kWidth;
+  using Lane = typename std::conditional<sizeof(T) == 4, int32_t, int64_t>::type;
+  static constexpr Lane kSet =
+      kSign ? static_cast<Lane>(Lane(1) << (8 * sizeof(Lane) - 1)) : Lane(-1);
+  alignas(32) Lane lanes[1 << kWidth][kWidth];
+  constexpr BitTable() : lanes() {
+    for (int bits = 0; bits < (1 << kWidth); ++bits) {
+      for (int i = 0; i < kWidth; ++i) lanes[bits][i] = (bits >> i) & 1 ? kSet : Lane(0);
+    }
+  }
+};
+template <typename T, bool kSign>
+constexpr BitTable<T, kSign> kBitTable{};
+
+template <typename T, bool kSign = false>
+inline typename Vec<T>::mask FromBits(uint8_t bits) {
+  typename Vec<T>::mask m;
+  std::memcpy(&m, kBitTable<T, kSign>.lanes[bits], sizeof(m));
+  return m;
+}
 
 // Horizontal sum in a fixed halving order.
 template <typename T>
@@ -105,14 +170,45 @@ struct Lanes {
   }
 };
 
+// min(a, b) as a < b ? a : b and max(a, b) as a > b ? a : b, the selects of the pure-JAX play step.
+// x86 MINPS/MAXPS compute exactly these (the second operand on ties), in one short instruction.
+template <typename T>
+inline typename Vec<T>::type Min(typename Vec<T>::type a, typename Vec<T>::type b) {
+#if defined(__AVX__)
+  if constexpr (sizeof(T) == 4) {
+    return reinterpret_cast<typename Vec<T>::type>(
+        _mm256_min_ps(reinterpret_cast<__m256>(a), reinterpret_cast<__m256>(b)));
+  } else {
+    return reinterpret_cast<typename Vec<T>::type>(
+        _mm256_min_pd(reinterpret_cast<__m256d>(a), reinterpret_cast<__m256d>(b)));
+  }
+#else
+  return a < b ? a : b;
+#endif
+}
+template <typename T>
+inline typename Vec<T>::type Max(typename Vec<T>::type a, typename Vec<T>::type b) {
+#if defined(__AVX__)
+  if constexpr (sizeof(T) == 4) {
+    return reinterpret_cast<typename Vec<T>::type>(
+        _mm256_max_ps(reinterpret_cast<__m256>(a), reinterpret_cast<__m256>(b)));
+  } else {
+    return reinterpret_cast<typename Vec<T>::type>(
+        _mm256_max_pd(reinterpret_cast<__m256d>(a), reinterpret_cast<__m256d>(b)));
+  }
+#else
+  return a > b ? a : b;
+#endif
+}
+
 // Forward over one chunk of NV vectors of plays starting at play j0. r, w and x point at the chunk's
-// padded lanes; x holds the states and is updated. h (row stride n), y and codes (row stride np) are
-// written when not null; y is set by the first chunk and accumulated by the others.
-template <typename T, int NV>
+// padded lanes; x holds the states and is updated. h (row stride n), y and codes (row stride nc)
+// are written when kH, kY, kCodes; y is set by the first chunk and accumulated by the others.
+// What is written is fixed at compile time, so the states stay in registers for the whole signal.
+template <typename T, int NV, bool kH, bool kY, bool kCodes>
 void ForwardChunk(const T* u, int64_t len, const T* r, const T* w, T* xs, int64_t j0, int64_t n,
-                  int64_t np, T* h, T* y, bool first, int8_t* codes) {
+                  int64_t nc, T* h, T* y, bool first, uint8_t* codes) {
   using V = typename Vec<T>::type;
-  using B = typename Vec<T>::bytes;
   constexpr int W = Vec<T>::kWidth;
   V rv[NV], wv[NV], x[NV];
   std::memcpy(rv, r, sizeof(rv));
@@ -124,18 +220,25 @@ void ForwardChunk(const T* u, int64_t len, const T* r, const T* w, T* xs, int64_
     V acc;
     for (int v = 0; v < NV; ++v) {
       const V lo = ut - rv[v], hi = ut + rv[v];
-      const auto up = hi < x[v];
-      const V m = up ? hi : x[v];
-      const auto dn = lo > m;
-      x[v] = dn ? lo : m;
-      if (codes != nullptr) {
-        const B c = __builtin_convertvector(dn - up, B);
-        std::memcpy(codes + t * np + v * W, &c, sizeof(c));
+      const V m = Min<T>(hi, x[v]);
+      if constexpr (kCodes) {
+        const uint8_t lower = ToBits<T>(lo > m);
+        codes[t * nc + 2 * v] = ToBits<T>(hi < x[v]) | lower;
+        codes[t * nc + 2 * v + 1] = lower;
       }
-      acc = v == 0 ? wv[0] * x[0] : acc + wv[v] * x[v];
+      x[v] = Max<T>(lo, m);
+      if constexpr (kY) acc = v == 0 ? wv[0] * x[0] : acc + wv[v] * x[v];
+      if constexpr (kH) {
+        const V xv = x[v];
+        const int64_t count = std::min<int64_t>(W, nh - v * W);
+        if (count == W) {
+          std::memcpy(h + t * n + v * W, &xv, sizeof(V));
+        } else if (count > 0) {
+          std::memcpy(h + t * n + v * W, &xv, count * sizeof(T));
+        }
+      }
     }
-    if (h != nullptr && nh > 0) std::memcpy(h + t * n, x, nh * sizeof(T));
-    if (y != nullptr) {
+    if constexpr (kY) {
       const T s = HSum<T>(acc);
       y[t] = first ? s : y[t] + s;
     }
@@ -143,53 +246,91 @@ void ForwardChunk(const T* u, int64_t len, const T* r, const T* w, T* xs, int64_
   std::memcpy(xs, x, sizeof(x));
 }
 
-template <typename T>
-void ForwardOne(const T* u, int64_t len, Lanes<T>& p, int64_t n, T* h, T* y, int8_t* codes) {
+template <typename T, bool kH, bool kY, bool kCodes>
+void ForwardChunks(const T* u, int64_t len, Lanes<T>& p, int64_t n, T* h, T* y, uint8_t* codes) {
   constexpr int W = Vec<T>::kWidth;
   const int64_t np = static_cast<int64_t>(p.r.size());
+  const int64_t nc = CodeBytes<T>(np);
   for (int64_t j0 = 0; j0 < np; j0 += kChunk * W) {
     const int nv = static_cast<int>(std::min<int64_t>(kChunk, (np - j0) / W));
     const bool first = j0 == 0;
-    T* hh = h != nullptr ? h + j0 : nullptr;
-    int8_t* cc = codes != nullptr ? codes + j0 : nullptr;
+    T* hh = kH ? h + j0 : nullptr;
+    uint8_t* cc = kCodes ? codes + 2 * (j0 / W) : nullptr;
     const T *r = p.r.data() + j0, *w = p.w.data() + j0;
     T* x = p.x.data() + j0;
+#define PIEST_FWD(NV) \
+  ForwardChunk<T, NV, kH, kY, kCodes>(u, len, r, w, x, j0, n, nc, hh, y, first, cc)
     switch (nv) {
-      case 1: ForwardChunk<T, 1>(u, len, r, w, x, j0, n, np, hh, y, first, cc); break;
-      case 2: ForwardChunk<T, 2>(u, len, r, w, x, j0, n, np, hh, y, first, cc); break;
-      case 3: ForwardChunk<T, 3>(u, len, r, w, x, j0, n, np, hh, y, first, cc); break;
-      default: ForwardChunk<T, 4>(u, len, r, w, x, j0, n, np, hh, y, first, cc); break;
+      case 1: PIEST_FWD(1); break;
+      case 2: PIEST_FWD(2); break;
+      case 3: PIEST_FWD(3); break;
+      default: PIEST_FWD(4); break;
     }
+#undef PIEST_FWD
   }
 }
 
-// Backward over one chunk. g1 (t,) is the cotangent of the fused output (weights w) or g2 (t, n)
-// that of the regressor (w all ones). Results go to the chunk's lanes of dr, dx0 and dw.
-template <typename T, int NV>
+// Exactly one of h (the bank) and y (the fused output) is given; codes is optional.
+template <typename T>
+void ForwardOne(const T* u, int64_t len, Lanes<T>& p, int64_t n, T* h, T* y, uint8_t* codes) {
+  if (h != nullptr) {
+    if (codes != nullptr) {
+      ForwardChunks<T, true, false, true>(u, len, p, n, h, y, codes);
+    } else {
+      ForwardChunks<T, true, false, false>(u, len, p, n, h, y, codes);
+    }
+  } else if (codes != nullptr) {
+    ForwardChunks<T, false, true, true>(u, len, p, n, h, y, codes);
+  } else {
+    ForwardChunks<T, false, true, false>(u, len, p, n, h, y, codes);
+  }
+}
+
+// Backward over one chunk. kBank: g (t, n) is the cotangent of the regressor (unit weights, no
+// dw); otherwise g (t,) is that of the fused output with weights w. Results go to the chunk's lanes
+// of dr, dx0 and dw.
+template <typename T, int NV, bool kBank>
 void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0, int64_t j0,
-                   int64_t n, int64_t np, const int8_t* codes, const T* g1, const T* g2, T* du,
-                   bool first, T* dr, T* dx0, T* dw) {
+                   int64_t n, int64_t nc, const uint8_t* codes, const T* g, T* du, bool first,
+                   T* dr, T* dx0, T* dw) {
   using V = typename Vec<T>::type;
-  using B = typename Vec<T>::bytes;
+  using M = typename Vec<T>::mask;
   constexpr int W = Vec<T>::kWidth;
   V wv[NV], nu[NV] = {}, sa[NV] = {}, su[NV] = {};
   std::memcpy(wv, w, sizeof(wv));
   const int64_t nh = std::min<int64_t>(NV * W, n - j0);
-  V gbuf[NV] = {};
   for (int64_t t = len - 1; t >= 0; --t) {
     const T ut = u[t];
-    if (g2 != nullptr && nh > 0) std::memcpy(gbuf, g2 + t * n, nh * sizeof(T));
     V acc;
     for (int v = 0; v < NV; ++v) {
-      B cb;
-      std::memcpy(&cb, codes + t * np + v * W, sizeof(cb));
-      const V s = __builtin_convertvector(cb, V);
-      nu[v] += g2 != nullptr ? gbuf[v] : g1[t] + V{};
-      const V a = s * s * nu[v];
-      acc = v == 0 ? wv[0] * a : acc + wv[v] * a;
-      sa[v] += s * nu[v];
-      su[v] += a * ut;
-      nu[v] -= a;
+      const M moved = FromBits<T>(codes[t * nc + 2 * v]);
+      const M lower_sign = FromBits<T, true>(codes[t * nc + 2 * v + 1]);
+      if constexpr (kBank) {
+        // Padding lanes get a zero cotangent, so they never contribute.
+        V gv = {};
+        const int64_t count = std::min<int64_t>(W, nh - v * W);
+        if (count == W) {
+          std::memcpy(&gv, g + t * n + v * W, sizeof(V));
+        } else if (count > 0) {
+          std::memcpy(&gv, g + t * n + v * W, count * sizeof(T));
+        }
+        nu[v] += gv;
+      } else {
+        nu[v] += g[t];
+      }
+      const M nu_bits = reinterpret_cast<M>(nu[v]);
+      // a: the cotangent that leaves through an active bound (all of nu, or nothing when held).
+      const M a_bits = nu_bits & moved;
+      const V a = reinterpret_cast<V>(a_bits);
+      if constexpr (kBank) {
+        acc = v == 0 ? a : acc + a;
+      } else {
+        acc = v == 0 ? wv[0] * a : acc + wv[v] * a;
+        su[v] += a * ut;
+      }
+      // d x / d r is +1 on the upper bound and -1 on the lower one: flip the sign there.
+      sa[v] += reinterpret_cast<V>(a_bits ^ lower_sign);
+      nu[v] = reinterpret_cast<V>(nu_bits & ~moved);
     }
     const T d = HSum<T>(acc);
     du[t] = first ? d : du[t] + d;
@@ -201,26 +342,33 @@ void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0,
   for (int64_t k = 0; k < nh; ++k) {
     dx0[k] = w[k] * nus[k];
     dr[k] = w[k] * sas[k];
-    if (dw != nullptr) dw[k] = sus[k] + r[k] * sas[k] + nus[k] * x0[k];
+    if constexpr (!kBank) dw[k] = sus[k] + r[k] * sas[k] + nus[k] * x0[k];
   }
 }
 
-template <typename T>
+// The fused backward keeps three accumulators per vector (nu, sa, su); chunks of kChunkFusedBwd
+// vectors keep them all in the 16 vector registers of AVX2.
+constexpr int kChunkFusedBwd = 4;
+
+template <typename T, bool kBank>
 void BackwardOne(const T* u, int64_t len, const T* r_in, const T* w_in, const T* x0_in, int64_t n,
-                 const int8_t* codes, const T* g1, const T* g2, T* du, T* dr, T* dx0, T* dw) {
+                 const uint8_t* codes, const T* g, T* du, T* dr, T* dx0, T* dw) {
   constexpr int W = Vec<T>::kWidth;
+  constexpr int kC = kBank ? kChunk : kChunkFusedBwd;
   const int64_t np = Padded(n);
+  const int64_t nc = CodeBytes<T>(np);
   Lanes<T> p(r_in, w_in, x0_in, n, np);
-  if (w_in == nullptr) std::fill(p.w.begin(), p.w.begin() + n, T(1));
-  for (int64_t j0 = 0; j0 < np; j0 += kChunk * W) {
-    const int nv = static_cast<int>(std::min<int64_t>(kChunk, (np - j0) / W));
+  if constexpr (kBank) std::fill(p.w.begin(), p.w.begin() + n, T(1));
+  for (int64_t j0 = 0; j0 < np; j0 += kC * W) {
+    const int nv = static_cast<int>(std::min<int64_t>(kC, (np - j0) / W));
     const bool first = j0 == 0;
     const T *r = p.r.data() + j0, *w = p.w.data() + j0, *x0 = p.x.data() + j0;
-    const int8_t* cc = codes + j0;
-    const T* gg = g2 != nullptr ? g2 + j0 : nullptr;
-    T* dww = dw != nullptr ? dw + j0 : nullptr;
-#define PIEST_BWD(NV) \
-  BackwardChunk<T, NV>(u, len, r, w, x0, j0, n, np, cc, g1, gg, du, first, dr + j0, dx0 + j0, dww)
+    const uint8_t* cc = codes + 2 * (j0 / W);
+    const T* gg = kBank ? g + j0 : g;
+    T* dww = kBank ? nullptr : dw + j0;
+#define PIEST_BWD(NV)                                                                        \
+  BackwardChunk<T, (NV <= kC ? NV : kC), kBank>(u, len, r, w, x0, j0, n, nc, cc, gg, du, first, \
+                                                dr + j0, dx0 + j0, dww)
     switch (nv) {
       case 1: PIEST_BWD(1); break;
       case 2: PIEST_BWD(2); break;
@@ -241,8 +389,8 @@ template <ffi::DataType DT>
 using Buf = ffi::Buffer<DT>;
 template <ffi::DataType DT>
 using Res = ffi::ResultBuffer<DT>;
-using Codes = ffi::Buffer<ffi::S8>;
-using CodesRes = ffi::ResultBuffer<ffi::S8>;
+using Codes = ffi::Buffer<ffi::U8>;
+using CodesRes = ffi::ResultBuffer<ffi::U8>;
 
 template <ffi::DataType DT>
 ffi::Error CheckShapes(const Buf<DT>& u, const Buf<DT>& r, int64_t* batch, int64_t* len,
@@ -258,7 +406,7 @@ ffi::Error CheckShapes(const Buf<DT>& u, const Buf<DT>& r, int64_t* batch, int64
 }
 
 template <ffi::DataType DT>
-ffi::Error BankFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Res<DT> h, int8_t* codes) {
+ffi::Error BankFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Res<DT> h, uint8_t* codes) {
   using T = ffi::NativeType<DT>;
   int64_t batch, len, n;
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
@@ -266,13 +414,13 @@ ffi::Error BankFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Res<DT> h, int8_t* codes) {
   ParallelFor(batch, len * np, [&](int64_t b) {
     Lanes<T> p(r.typed_data() + b * n, nullptr, x0.typed_data() + b * n, n, np);
     ForwardOne<T>(u.typed_data() + b * len, len, p, n, h->typed_data() + b * len * n, nullptr,
-                  codes != nullptr ? codes + b * len * np : nullptr);
+                  codes != nullptr ? codes + b * len * CodeBytes<T>(np) : nullptr);
   });
   return ffi::Error::Success();
 }
 
 template <ffi::DataType DT>
-ffi::Error PiFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Res<DT> y, int8_t* codes) {
+ffi::Error PiFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Res<DT> y, uint8_t* codes) {
   using T = ffi::NativeType<DT>;
   int64_t batch, len, n;
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
@@ -280,7 +428,7 @@ ffi::Error PiFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Res<DT> y, int8_t*
   ParallelFor(batch, len * np, [&](int64_t b) {
     Lanes<T> p(r.typed_data() + b * n, w.typed_data() + b * n, x0.typed_data() + b * n, n, np);
     ForwardOne<T>(u.typed_data() + b * len, len, p, n, nullptr, y->typed_data() + b * len,
-                  codes != nullptr ? codes + b * len * np : nullptr);
+                  codes != nullptr ? codes + b * len * CodeBytes<T>(np) : nullptr);
   });
   return ffi::Error::Success();
 }
@@ -310,10 +458,11 @@ ffi::Error BankBwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Codes codes, Buf<DT> gh, Re
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
   const int64_t np = Padded(n);
   ParallelFor(batch, len * np, [&](int64_t b) {
-    BackwardOne<T>(u.typed_data() + b * len, len, r.typed_data() + b * n, nullptr,
-                   x0.typed_data() + b * n, n, codes.typed_data() + b * len * np, nullptr,
-                   gh.typed_data() + b * len * n, du->typed_data() + b * len,
-                   dr->typed_data() + b * n, dx0->typed_data() + b * n, nullptr);
+    BackwardOne<T, true>(u.typed_data() + b * len, len, r.typed_data() + b * n, nullptr,
+                         x0.typed_data() + b * n, n,
+                         codes.typed_data() + b * len * CodeBytes<T>(np),
+                         gh.typed_data() + b * len * n, du->typed_data() + b * len,
+                         dr->typed_data() + b * n, dx0->typed_data() + b * n, nullptr);
   });
   return ffi::Error::Success();
 }
@@ -326,10 +475,12 @@ ffi::Error PiBwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Codes codes, Buf<D
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
   const int64_t np = Padded(n);
   ParallelFor(batch, len * np, [&](int64_t b) {
-    BackwardOne<T>(u.typed_data() + b * len, len, r.typed_data() + b * n, w.typed_data() + b * n,
-                   x0.typed_data() + b * n, n, codes.typed_data() + b * len * np,
-                   gy.typed_data() + b * len, nullptr, du->typed_data() + b * len,
-                   dr->typed_data() + b * n, dx0->typed_data() + b * n, dw->typed_data() + b * n);
+    BackwardOne<T, false>(u.typed_data() + b * len, len, r.typed_data() + b * n,
+                          w.typed_data() + b * n, x0.typed_data() + b * n, n,
+                          codes.typed_data() + b * len * CodeBytes<T>(np),
+                          gy.typed_data() + b * len, du->typed_data() + b * len,
+                          dr->typed_data() + b * n, dx0->typed_data() + b * n,
+                          dw->typed_data() + b * n);
   });
   return ffi::Error::Success();
 }
@@ -424,9 +575,22 @@ PyObject* Registrations(PyObject*, PyObject*) {
 
 PyObject* Lanes_(PyObject*, PyObject*) { return PyLong_FromLongLong(kLanes); }
 
+// The instruction-set extensions the kernels were compiled for (/proc/cpuinfo names), so that a
+// binary moved to a CPU without them is refused before any kernel runs.
+PyObject* Isa(PyObject*, PyObject*) {
+#if defined(__AVX2__) && defined(__FMA__)
+  return Py_BuildValue("(ss)", "avx2", "fma");
+#elif defined(__AVX__)
+  return Py_BuildValue("(s)", "avx");
+#else
+  return PyTuple_New(0);
+#endif
+}
+
 PyMethodDef kMethods[] = {
     {"registrations", Registrations, METH_NOARGS, "FFI handler capsules by target name."},
     {"lanes", Lanes_, METH_NOARGS, "The padding width of the play lanes."},
+    {"isa", Isa, METH_NOARGS, "The instruction-set extensions the kernels need."},
     {nullptr, nullptr, 0, nullptr},
 };
 

@@ -1,0 +1,133 @@
+"""`piest compensate`: the feedforward input that cancels a fitted model's hysteresis."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .. import _io
+from .._compensate import admissible_states, feedforward
+from .._data import load_columns
+from .._pi import PIOperator
+from ._common import CLIError, add_output_options
+
+NAME = "compensate"
+HELP = "compute the feedforward input that makes a fitted PI model follow a desired output"
+DESCRIPTION = """\
+Invert the model in MODEL.json (as written by `piest fit`: thresholds, weights, offset,
+initial_states) analytically and compute u = P^-1[desired - offset] for the desired output in
+DESIRED.csv (a header naming `t` and the column given by --column, default `desired`, else `y`).
+Writes
+  DIR/compensate.csv    columns t, desired, u (the feedforward input) and model (the model's
+                        output for u, equal to desired up to rounding)
+  DIR/compensate.json   the model file, the plays' initial states used, the input's range and
+                        the largest |model - desired|
+  DIR/compensate.png    desired output and feedforward input over time, and u against desired
+The model must be invertible: r_1 = 0 and positive cumulative weights (fit without
+--signed-weights to guarantee it).
+
+example:  piest compensate fitted/fit.json desired.csv --out ff"""
+
+OUTPUTS = ("compensate.csv", "compensate.json", "compensate.png")
+
+
+def add_arguments(p):
+    p.add_argument("model", metavar="MODEL.json", help="a model written by `piest fit`")
+    p.add_argument("desired", metavar="DESIRED.csv", help="CSV with t and the desired output")
+    p.add_argument("--column", default=None, help="the desired-output column (default desired, y)")
+    p.add_argument(
+        "--initial-states",
+        type=float,
+        default=None,
+        metavar="X",
+        help="the plays' state at the start (default: the model's, made admissible)",
+    )
+    add_output_options(p, "piest-compensate")
+
+
+def load_model(path):
+    """Thresholds, weights, offset and initial states from a `piest fit` JSON file."""
+    path = Path(path)
+    if not path.is_file():
+        raise CLIError(f"{path}: no such file")
+    try:
+        d = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise CLIError(f"{path}: not a JSON file ({e})") from None
+    if not isinstance(d, dict):
+        raise CLIError(f"{path}: expected a JSON object as written by `piest fit`")
+    missing = [k for k in ("thresholds", "weights") if k not in d]
+    if missing:
+        raise CLIError(f"{path}: missing {', '.join(missing)} (is it a `piest fit` fit.json?)")
+    try:
+        r = np.asarray(d["thresholds"], dtype=float)
+        w = np.asarray(d["weights"], dtype=float)
+        c = float(d.get("offset", 0.0))
+        x0 = np.asarray(d.get("initial_states", 0.0), dtype=float)
+    except (TypeError, ValueError) as e:
+        raise CLIError(f"{path}: thresholds, weights, offset must be numbers ({e})") from None
+    if r.ndim != 1 or r.shape != w.shape:
+        raise CLIError(f"{path}: thresholds {r.shape} and weights {w.shape} must be equal vectors")
+    if r.size == 0:
+        raise CLIError(f"{path}: the model has no plays (empty thresholds and weights)")
+    if x0.ndim > 1 or x0.size not in (1, r.size):
+        raise CLIError(f"{path}: initial_states has {x0.size} entries for {r.size} plays")
+    if not all(np.all(np.isfinite(a)) for a in (r, w, c, x0)):
+        raise CLIError(f"{path}: thresholds, weights, offset and initial_states must be finite")
+    return r, w, c, x0
+
+
+def load_desired(path, column):
+    """Time and desired output from a CSV with a header row (read by `load_columns`, so errors
+    name the file, row and problem)."""
+    names = load_columns(path, ("t",))
+    col = (column or ("desired" if "desired" in names else "y")).lower()
+    if col not in names:
+        raise CLIError(f"{path}: no column `{col}` in the header ({', '.join(names)})")
+    cols = load_columns(path, ("t", col))
+    return cols["t"], cols[col], col
+
+
+def run(args) -> int:
+    out = _io.check_outputs(args.out, OUTPUTS, args.force)
+    r, w, c, x0 = load_model(args.model)
+    t, yd, col = load_desired(args.desired, args.column)
+    if args.initial_states is not None:
+        x0 = np.full(r.shape, args.initial_states)
+    x0 = np.asarray(admissible_states(r, x0))
+    op = PIOperator(r, w, x0)
+    u = np.asarray(feedforward(op, yd, offset=c))
+    ym = np.asarray(op(u)) + c
+    written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
+    summary = {
+        "model": str(args.model),
+        "desired": str(args.desired),
+        "column": col,
+        "n_samples": len(t),
+        "initial_states": x0,
+        "u_min": float(u.min()),
+        "u_max": float(u.max()),
+        "max_model_error": float(np.max(np.abs(ym - yd))),
+    }
+    written.append(_io.write_json(out / "compensate.json", summary))
+    written.append(_io.save_figure(_figure(t, yd, u), out / "compensate.png", dpi=110))
+    for p in written:
+        print(p)
+    return 0
+
+
+def _figure(t, yd, u):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    a1.plot(t, yd, "k", lw=0.8, label="desired output")
+    a1.plot(t, u, "C1", lw=0.8, label="feedforward input")
+    a1.set(xlabel="time", title="compensation")
+    a1.legend(fontsize=8)
+    a2.plot(yd, u, lw=0.8)
+    a2.set(xlabel="desired output", ylabel="feedforward input", title="inverse loop")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,179 @@
+"""`piest fit`: fit a PI model (thresholds, weights, offset) to a measured record."""
+
+import argparse
+import sys
+
+import numpy as np
+
+from .. import _io
+from .._data import load_record
+from .._fit import SOLVERS, fit_pi
+from .._modelsize import CRITERIA, select_plays
+from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+
+NAME = "fit"
+HELP = "fit thresholds, weights and offset of a PI model to a measured (t, u, y) record"
+DESCRIPTION = """\
+Fit y = sum_j w_j H_{r_j}[u] + offset to DATA.csv (header naming t, u, y) by least squares
+through the play scan (Levenberg-Marquardt by default), thresholds included, and write
+  DIR/fit.json         thresholds, weights, offset, initial_states, rmse, validation_rmse (with
+                       --validate), the solver's result, plays flagged as not excited, and with
+                       --plays auto the candidates and their scores
+  DIR/fit.png          the measured and fitted loops and the residual over time
+  DIR/validation.png   the same for --validate VAL.csv
+Thresholds at or above half the input's peak-to-peak range cannot be excited and are flagged.
+--plays auto picks the number of plays by held-out error on the last 30 % of the record
+(or --criterion bic). Weights are kept positive (so the model can be inverted by
+`piest compensate`) unless --signed-weights.
+
+example:  piest fit data.csv --plays 4 --validate val.csv --out fitted"""
+
+OUTPUTS = ("fit.json", "fit.png", "validation.png")
+
+
+def plays_arg(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        return positive_int(text)
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(f"{e}; or 'auto'") from None
+
+
+def add_arguments(p):
+    p.add_argument("data", metavar="DATA.csv", help="the identification record (t, u, y)")
+    p.add_argument(
+        "--plays", type=plays_arg, required=True, metavar="N|auto", help="number of plays, or auto"
+    )
+    p.add_argument("--validate", metavar="VAL.csv", help="a second record to evaluate the fit on")
+    p.add_argument("--solver", choices=SOLVERS, default="lm", help="lm (default), gn or bfgs")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
+    p.add_argument("--starts", type=positive_int, default=4, help="starts solved at once (default 4)")
+    p.add_argument(
+        "--candidates",
+        type=float_list,
+        default=[1, 2, 3, 4, 5, 6, 8, 10],
+        help="numbers of plays tried by --plays auto (default 1,2,3,4,5,6,8,10)",
+    )
+    p.add_argument("--criterion", choices=CRITERIA, default="holdout", help="for --plays auto")
+    p.add_argument(
+        "--initial-states",
+        type=float,
+        default=None,
+        metavar="X",
+        help="the plays' state before each record (default: each record's first input)",
+    )
+    p.add_argument(
+        "--fit-initial-states", action="store_true", help="fit the initial states as well"
+    )
+    p.add_argument("--signed-weights", action="store_true", help="allow negative weights")
+    p.add_argument(
+        "--max-threshold", type=positive_float, help="upper bound on every threshold (u units)"
+    )
+    p.add_argument("--max-steps", type=positive_int, default=100, help="solver steps (default 100)")
+    p.add_argument(
+        "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
+    )
+    add_output_options(p, "piest-fit")
+
+
+def _rmse(a, b) -> float:
+    return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
+
+
+def run(args) -> int:
+    import jax
+
+    if args.fit_initial_states and args.initial_states is not None:
+        raise CLIError("give either --initial-states or --fit-initial-states, not both")
+    cands = [int(c) for c in args.candidates]
+    if any(c != v or c < 1 for c, v in zip(cands, args.candidates)):
+        raise CLIError(f"--candidates must be positive whole numbers, got {args.candidates}")
+    names = OUTPUTS if args.validate else OUTPUTS[:2]
+    out = _io.check_outputs(args.out, names, args.force)
+    rec = load_record(args.data, resample=args.resample)
+    val = load_record(args.validate, resample=args.resample) if args.validate else None
+    opts = dict(
+        solver=args.solver,
+        n_starts=args.starts,
+        key=jax.random.key(args.seed),
+        positive_weights=not args.signed_weights,
+        fit_initial_states=args.fit_initial_states,
+        initial_states=args.initial_states,
+        max_threshold=args.max_threshold,
+        max_steps=args.max_steps,
+    )
+    selection = None
+    if args.plays == "auto":
+        too_many = [c for c in cands if 2 * c + 1 > rec.n_samples]
+        if too_many:
+            raise CLIError(
+                f"--candidates {too_many} need more parameters than the {rec.n_samples} samples"
+            )
+        sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, **opts)
+        f = sel.fit
+        selection = {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores}
+    else:
+        f = fit_pi(rec.u, rec.y, args.plays, **opts)
+    report = {
+        "data": str(args.data),
+        "n_samples": rec.n_samples,
+        "n_plays": f.n_plays,
+        "thresholds": f.thresholds,
+        "weights": f.weights,
+        "offset": f.offset,
+        "initial_states": f.initial_states,
+        "rmse": f.rmse,
+        "flagged": f.flagged,
+        "solver": {
+            "name": args.solver,
+            "result": f.result_name,
+            "steps": f.n_steps,
+            "start_rmse": f.start_rmse,
+        },
+        "input_half_range": 0.5 * float(np.ptp(rec.u)),
+    }
+    if selection:
+        report["selection"] = selection
+    written = []
+    if val is not None:
+        x0 = _validation_states(args, f, val)
+        yv = np.asarray(f(val.u, x0))
+        report["validate"] = str(args.validate)
+        report["validation_rmse"] = _rmse(yv, val.y)
+        written.append(
+            _io.save_figure(_figure(val, yv, "validation"), out / "validation.png", dpi=110)
+        )
+    written.insert(0, _io.save_figure(_figure(rec, np.asarray(f(rec.u)), "fit"), out / "fit.png",
+                                      dpi=110))
+    written.insert(0, _io.write_json(out / "fit.json", report))
+    if np.any(np.asarray(f.flagged)):
+        idx = [i + 1 for i in np.flatnonzero(np.asarray(f.flagged))]
+        print(f"piest fit: note: plays {idx} are not excited by the input; their thresholds are "
+              "not determined by the data", file=sys.stderr)
+    for p in written:
+        print(p)
+    return 0
+
+
+def _validation_states(args, f, val):
+    if args.fit_initial_states:
+        return f.initial_states
+    return val.u[0] if args.initial_states is None else args.initial_states
+
+
+def _figure(rec, ym, what):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    a1.plot(rec.u, rec.y, "k", lw=0.7, label="measured")
+    a1.plot(rec.u, ym, "C1", lw=0.7, label="model")
+    a1.set(xlabel="input u", ylabel="output y", title=f"{what}: loop")
+    a1.legend(fontsize=8)
+    a2.plot(rec.t, rec.y - ym, lw=0.6)
+    a2.set(xlabel="time", ylabel="y - model", title=f"residual, RMSE {_rmse(ym, rec.y):.4g}")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,119 @@
+"""Choosing the number of plays from the data.
+
+Two criteria. **Held-out error** (the default): every candidate is fitted on the first part of the
+record with the last block held out (blocked, not random, so that neighbouring and hence correlated
+samples never sit on both sides of the split); the model still runs through the held-out block, so
+the plays' states carry over, and its RMSE there is the score. The smallest n whose score is within
+`tolerance` of the best is chosen, since a larger model that is not measurably better only fits noise.
+**BIC**: T ln(MSE) + k ln T on the whole record, k = 2n + 1 parameters (3n + 1 with fitted initial
+states), minimised.
+
+Candidates differ in shape, so each one compiles the fit once per record length.
+"""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import _checks
+from ._fit import PIFit, fit_pi
+
+CRITERIA = ("holdout", "bic")
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelSize:
+    """The result of [`select_plays`][].
+
+    **Fields:**
+
+    - `n_plays`: the chosen number of plays.
+    - `candidates`: the numbers tried; `scores`: their held-out RMSE or BIC, in the same order.
+    - `criterion`: `"holdout"` or `"bic"`.
+    - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
+    """
+
+    n_plays: int
+    candidates: tuple
+    scores: tuple
+    criterion: str
+    fit: PIFit
+
+
+def holdout_mask(T: int, holdout: float) -> np.ndarray:
+    """1 on the first samples, 0 on the last `holdout` fraction (a blocked split).
+
+    **Arguments:** `T`, the record length; `holdout`, the held-out fraction in (0, 1).
+
+    **Returns:** float array (T,).
+    """
+    if not 0 < holdout < 1:
+        raise ValueError(f"`holdout` must lie strictly between 0 and 1, got {holdout}")
+    n_fit = int(round(T * (1 - holdout)))
+    if n_fit < 1 or n_fit >= T:
+        raise ValueError(f"a {holdout:g} hold-out of {T} samples leaves an empty block")
+    mask = np.zeros(T)
+    mask[:n_fit] = 1.0
+    return mask
+
+
+def select_plays(
+    u,
+    y,
+    candidates=(1, 2, 3, 4, 5, 6, 8, 10),
+    *,
+    criterion: str = "holdout",
+    holdout: float = 0.3,
+    tolerance: float = 0.01,
+    **fit_kwargs,
+) -> ModelSize:
+    """Choose the number of plays by held-out error on a blocked split, or by BIC.
+
+    **Arguments:**
+
+    - `u`, `y`: the record, (T,) each.
+    - `candidates`: the numbers of plays to try (positive, distinct).
+    - `criterion`: `"holdout"` or `"bic"`.
+    - `holdout`: the fraction of the record, at its end, held out (criterion `"holdout"`).
+    - `tolerance`: relative slack on the best held-out RMSE within which the smallest n wins.
+    - `fit_kwargs`: passed to [`fit_pi`][] (solver, positive_weights, n_starts, key, ...).
+
+    **Returns:** a [`ModelSize`][]. Raises `ValueError` for an unknown criterion or bad candidates.
+    """
+    if criterion not in CRITERIA:
+        raise ValueError(f"unknown criterion {criterion!r}; choose one of {CRITERIA}")
+    cands = tuple(int(c) for c in candidates)
+    if not cands or min(cands) < 1 or len(set(cands)) != len(cands):
+        raise ValueError(f"`candidates` must be distinct positive numbers, got {candidates}")
+    if tolerance < 0:
+        raise ValueError(f"`tolerance` must be non-negative, got {tolerance}")
+    u = _checks.signal(u, "u")
+    y = _checks.signal(y, "y")
+    T = u.shape[0]
+    fits = {}
+    scores = []
+    if criterion == "holdout":
+        mask = holdout_mask(T, holdout)
+        test = mask == 0
+        for n in cands:
+            f = fit_pi(u, y, n, mask=mask, **fit_kwargs)
+            pred = np.asarray(f(u))
+            scores.append(float(np.sqrt(np.mean((pred[test] - np.asarray(y)[test]) ** 2))))
+        best = min(scores)
+        chosen = next(n for n, s in zip(cands, scores) if s <= best * (1 + tolerance))
+    else:
+        per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
+        for n in cands:
+            f = fit_pi(u, y, n, **fit_kwargs)
+            fits[n] = f
+            mse = max(float(f.rmse) ** 2, np.finfo(np.float64).tiny)
+            scores.append(T * np.log(mse) + (per_play * n + 1) * np.log(T))
+        chosen = cands[int(np.argmin(scores))]
+    fit = fits.get(chosen) or fit_pi(u, y, chosen, **fit_kwargs)
+    return ModelSize(chosen, cands, tuple(float(s) for s in scores), criterion, fit)
+
+
+def rmse(a, b) -> float:
+    """Root-mean-square difference of two signals (a convenience for reports)."""
+    return float(jnp.sqrt(jnp.mean((jnp.asarray(a) - jnp.asarray(b)) ** 2)))

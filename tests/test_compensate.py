@@ -1,0 +1,140 @@
+"""Inverse compensation: the feedforward input against a bisection reference, and the CLI."""
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import piest_jax as pj
+from piest_jax._cli import main
+
+R = np.array([0.0, 0.4, 1.0, 1.7])
+W = np.array([1.0, 0.5, 0.3, 0.2])
+C = -0.25
+
+
+def desired(T=300):
+    t = np.linspace(0.0, 3.0, T)
+    return t, 1.5 * np.sin(2 * np.pi * t) + 0.6 * np.sin(2 * np.pi * 2.7 * t)
+
+
+def bisection_feedforward(r, w, c, x0, yd):
+    """Independent reference: at each sample, the input whose one-step model output is yd_t.
+
+    With positive cumulative weights the one-step output is increasing in u_t, so bisection finds
+    the unique solution; the plays' states then advance with that input.
+    """
+    x = np.broadcast_to(np.asarray(x0, float), r.shape).copy()
+    out = np.empty(len(yd))
+    for t, target in enumerate(yd):
+        def step(ut):
+            return np.maximum(ut - r, np.minimum(ut + r, x))
+
+        lo, hi = -100.0, 100.0
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            if w @ step(mid) + c < target:
+                lo = mid
+            else:
+                hi = mid
+        out[t] = 0.5 * (lo + hi)
+        x = step(out[t])
+    return out
+
+
+def test_feedforward_matches_bisection_reference():
+    _, yd = desired()
+    op = pj.PIOperator(R, W, 0.0)
+    u = np.asarray(pj.feedforward(op, yd, offset=C))
+    np.testing.assert_allclose(u, bisection_feedforward(R, W, C, 0.0, yd), atol=1e-9)
+    np.testing.assert_allclose(op(u) + C, yd, atol=1e-10)
+
+
+def test_fitted_model_uses_its_offset():
+    t = np.linspace(0, 2, 400)
+    u = 2.0 * np.sin(2 * np.pi * 2 * t)
+    r = np.arange(4) / 4 * 0.5 * np.ptp(u)  # the grid uniform_pi uses for this input
+    y = np.asarray(pj.PIOperator(r, W, u[0])(u)) + C
+    fit = pj.uniform_pi(u, y, 4)
+    np.testing.assert_allclose(fit.weights, W, rtol=1e-8)
+    _, yd = desired()
+    uff = pj.feedforward(fit, yd, initial_states=0.0)
+    np.testing.assert_allclose(pj.PIOperator(r, W, 0.0)(uff) + C, yd, atol=1e-9)
+
+
+def test_compensation_removes_error_with_and_without_model_error():
+    _, yd = desired()
+    op = pj.PIOperator(R, W, 0.0)
+    exact = pj.evaluate_compensation(op, op, yd)
+    assert float(exact.rmse_compensated) < 1e-10
+    assert float(exact.rmse_linear) > 0.05
+    # The plant differs from the model: thresholds 10 % larger and a mild output nonlinearity.
+    plant_op = pj.PIOperator(1.1 * R, W, 0.0)
+
+    def plant(u):
+        y = plant_op(u)
+        return y + 0.03 * y**2
+
+    mismatch = pj.evaluate_compensation(plant, op, yd)
+    assert float(mismatch.rmse_compensated) < 0.7 * float(mismatch.rmse_linear)
+    # The linear feedforward is the least-squares line through (u_compensated, desired).
+    a, b = np.polyfit(np.asarray(mismatch.u_compensated), yd, 1)
+    np.testing.assert_allclose(mismatch.u_linear, (yd - b) / a, rtol=1e-8)
+
+
+@given(st.lists(st.floats(-3, 3), min_size=4, max_size=4))
+def test_admissible_states_property(x):
+    xa = np.asarray(pj.admissible_states(R, np.asarray(x)))
+    assert np.all(np.abs(np.diff(xa)) <= np.diff(R) + 1e-12)
+    assert xa[0] == x[0]
+    np.testing.assert_allclose(pj.admissible_states(R, xa), xa, atol=1e-12)
+
+
+def test_not_invertible_model_is_rejected():
+    _, yd = desired(20)
+    with pytest.raises(ValueError, match="not invertible"):
+        pj.feedforward(pj.PIOperator(R, [1.0, -2.0, 0.1, 0.1]), yd)
+    with pytest.raises(ValueError, match="must be a PIFit or a PIOperator"):
+        pj.feedforward("model", yd)
+    with pytest.raises(ValueError, match="`desired` contains NaN"):
+        pj.feedforward(pj.PIOperator(R, W), np.full(5, np.nan))
+
+
+def write_model(path, weights=W):
+    model = {"thresholds": R.tolist(), "weights": list(weights), "offset": C,
+             "initial_states": [0.0] * 4}
+    path.write_text(json.dumps(model))
+
+
+def test_cli_compensate(tmp_path, capsys):
+    t, yd = desired()
+    write_model(tmp_path / "fit.json")
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, yd]), delimiter=",", header="t,desired",
+               comments="")
+    rc = main(["compensate", str(tmp_path / "fit.json"), str(tmp_path / "d.csv"),
+               "--out", str(tmp_path / "out"), "--quiet"])
+    assert rc == 0
+    assert len(capsys.readouterr().out.split()) == 3
+    data = np.loadtxt(tmp_path / "out" / "compensate.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(data[:, 2], bisection_feedforward(R, W, C, 0.0, yd), atol=1e-9)
+    np.testing.assert_allclose(data[:, 3], yd, atol=1e-9)
+    summary = json.loads((tmp_path / "out" / "compensate.json").read_text())
+    assert summary["max_model_error"] < 1e-9
+
+
+def test_cli_compensate_bad_input(tmp_path, capsys):
+    t, yd = desired(10)
+    write_model(tmp_path / "fit.json")
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, yd]), delimiter=",", header="t,z",
+               comments="")
+    args = [str(tmp_path / "fit.json"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]
+    assert main(["compensate", *args]) == 2
+    assert "no column `y`" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text('{"thresholds": [0, 1]}')
+    assert main(["compensate", str(tmp_path / "bad.json"), *args[1:]]) == 2
+    assert "missing weights" in capsys.readouterr().err
+    write_model(tmp_path / "neg.json", weights=[1.0, -2.0, 0.1, 0.1])
+    assert main(["compensate", str(tmp_path / "neg.json"), *args[1:], "--column", "z"]) == 2
+    assert "not invertible" in capsys.readouterr().err

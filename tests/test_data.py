@@ -1,0 +1,248 @@
+"""Loading measured records: formats that must load, and each rejection with its message."""
+
+import numpy as np
+import pytest
+
+from piest_jax._data import (
+    DataError,
+    Record,
+    builtin_datasets,
+    builtin_path,
+    load_record,
+)
+
+
+def _rows(n=10, dt=0.5):
+    t = dt * np.arange(n)
+    return t, np.sin(t), np.cos(t)
+
+
+def _csv(tmp_path, text, name="d.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def _table(t, u, y, *, delim=",", header="t,u,y", extra=None):
+    lines = [header.replace(",", delim)]
+    for k in range(len(t)):
+        cells = [t[k], u[k], y[k]] + ([extra[k]] if extra is not None else [])
+        lines.append(delim.join(repr(float(c)) for c in cells))
+    return "\n".join(lines) + "\n"
+
+
+def test_csv_with_extra_column_kept(tmp_path):
+    t, u, y = _rows()
+    d = 2 * u
+    rec = load_record(_csv(tmp_path, _table(t, u, y, header="t,u,y,desired", extra=d)))
+    np.testing.assert_array_equal(rec.t, t)
+    np.testing.assert_array_equal(rec.u, u)
+    np.testing.assert_array_equal(rec.y, y)
+    assert list(rec.extras) == ["desired"]
+    np.testing.assert_array_equal(rec.extras["desired"], d)
+    assert rec.n_samples == 10 and rec.dt == pytest.approx(0.5)
+    assert rec.source.endswith("d.csv")
+
+
+def test_column_order_and_case_do_not_matter(tmp_path):
+    t, u, y = _rows()
+    text = "Y,T,U\n" + "".join(f"{y[k]:.17g},{t[k]:.17g},{u[k]:.17g}\n" for k in range(10))
+    rec = load_record(_csv(tmp_path, text))
+    np.testing.assert_array_equal(rec.u, u)
+    np.testing.assert_array_equal(rec.y, y)
+
+
+@pytest.mark.parametrize("delim", [";", "\t"])
+def test_other_delimiters(tmp_path, delim):
+    t, u, y = _rows()
+    rec = load_record(_csv(tmp_path, _table(t, u, y, delim=delim)))
+    np.testing.assert_array_equal(rec.y, y)
+
+
+def test_preamble_and_comments_skipped(tmp_path):
+    t, u, y = _rows()
+    body = _table(t, u, y).splitlines()
+    text = "Instrument: XY-500\nDate: 2024-01-01\n\n" + "\n".join(
+        body[:4] + ["# a comment", ""] + body[4:]
+    )
+    rec = load_record(_csv(tmp_path, text))
+    np.testing.assert_array_equal(rec.t, t)
+
+
+def test_npz_with_extra_arrays(tmp_path):
+    t, u, y = _rows()
+    p = tmp_path / "d.npz"
+    np.savez(p, t=t, u=u, y=y, desired=3 * u, image=np.zeros((2, 2)))
+    rec = load_record(p)
+    np.testing.assert_array_equal(rec.u, u)
+    assert list(rec.extras) == ["desired"]  # two-dimensional extras are not time series
+
+
+def test_resample_onto_uniform_grid(tmp_path):
+    t = np.r_[0.0, 1.0, 2.0, 3.5, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]
+    u = 2.0 * t + 1.0
+    rec = load_record(_csv(tmp_path, _table(t, u, -u)), resample=True)
+    np.testing.assert_allclose(rec.t, np.arange(10.0))
+    np.testing.assert_allclose(rec.u, 2.0 * np.arange(10.0) + 1.0, atol=1e-12)
+    np.testing.assert_allclose(rec.y, -rec.u, atol=1e-12)
+
+
+def test_slice_keeps_extras():
+    t, u, y = _rows()
+    rec = Record(t, u, y, {"d": u + 1}).slice(2, 5)
+    assert rec.n_samples == 3
+    np.testing.assert_array_equal(rec.extras["d"], u[2:5] + 1)
+
+
+def _fails(tmp_path, text, match, **kw):
+    with pytest.raises(DataError, match=match):
+        load_record(_csv(tmp_path, text), **kw)
+
+
+def test_missing_column(tmp_path):
+    t, u, y = _rows()
+    text = "t,u\n" + "".join(f"{t[k]},{u[k]}\n" for k in range(10))
+    _fails(tmp_path, text, r"d\.csv, row 1: missing column\(s\) y: the header has t, u")
+
+
+def test_no_header(tmp_path):
+    t, u, y = _rows()
+    text = _table(t, u, y).split("\n", 1)[1]
+    _fails(tmp_path, text, r"no header row naming the columns t, u and y .*first line: '0\.0,")
+
+
+def test_empty_file(tmp_path):
+    _fails(tmp_path, "\n\n", "the file is empty")
+
+
+def test_header_without_data(tmp_path):
+    _fails(tmp_path, "t,u,y\n", "the header is there but no data rows follow")
+
+
+def test_non_numeric_cell(tmp_path):
+    t, u, y = _rows()
+    lines = _table(t, u, y).splitlines()
+    lines[4] = "1.5,abc,0.2"
+    _fails(tmp_path, "\n".join(lines), r"row 5: cell 2 is not a number: 'abc' \(column `u`\)")
+
+
+def test_wrong_cell_count(tmp_path):
+    t, u, y = _rows()
+    lines = _table(t, u, y).splitlines()
+    lines[3] = "1.0,2.0"
+    _fails(tmp_path, "\n".join(lines), r"row 4: expected 3 cells as in the header, found 2")
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "-inf"])
+def test_nan_or_inf(tmp_path, bad):
+    t, u, y = _rows()
+    lines = _table(t, u, y).splitlines()
+    lines[6] = f"{t[5]},{u[5]},{bad}"
+    message = rf"row 7: column `y` holds {bad} \(NaN or inf are not data\)"
+    _fails(tmp_path, "\n".join(lines), message)
+
+
+def test_too_few_samples(tmp_path):
+    t, u, y = _rows(n=5)
+    _fails(tmp_path, _table(t, u, y), r"only 5 samples; at least 8 are needed")
+    assert load_record(_csv(tmp_path, _table(t, u, y)), min_samples=5).n_samples == 5
+
+
+@pytest.mark.parametrize("t5, what", [(1.5, "repeats"), (1.25, "goes backwards")])
+def test_time_not_strictly_increasing(tmp_path, t5, what):
+    t, u, y = _rows()
+    t = t.copy()
+    t[4] = t5
+    _fails(tmp_path, _table(t, u, y), rf"row 6: time is not strictly increasing: t = {t5} {what}")
+
+
+def test_non_uniform_sampling(tmp_path):
+    t, u, y = _rows()
+    t = t.copy()
+    t[6:] += 0.2
+    _fails(
+        tmp_path,
+        _table(t, u, y),
+        r"row 8: non-uniform sampling: step 0\.7 against the median 0\.5 .*resample=True",
+    )
+    # Within the tolerance it loads as is.
+    t2 = 0.5 * np.arange(10.0)
+    t2[6] += 1e-5
+    assert load_record(_csv(tmp_path, _table(t2, u, y))).n_samples == 10
+
+
+def test_duplicated_column(tmp_path):
+    text = "t,u,y,u\n" + "0,1,2,3\n" * 3
+    _fails(tmp_path, text, r"row 1: duplicated column name\(s\) in the header: u")
+
+
+def test_missing_file_and_folder(tmp_path):
+    with pytest.raises(DataError, match="no such file"):
+        load_record(tmp_path / "absent.csv")
+    with pytest.raises(DataError, match="is a folder, not a data file"):
+        load_record(tmp_path)
+
+
+def test_binary_file(tmp_path):
+    p = tmp_path / "bin.csv"
+    p.write_bytes(b"\xff\xfe\x00\x81" * 8)
+    with pytest.raises(DataError, match=r"is not a text \(UTF-8\) CSV file"):
+        load_record(p)
+
+
+def test_npz_rejections(tmp_path):
+    t, u, y = _rows()
+    p = tmp_path / "d.npz"
+    np.savez(p, t=t, u=u)
+    with pytest.raises(DataError, match=r"missing array\(s\) y; found \['t', 'u'\]"):
+        load_record(p)
+    np.savez(p, t=t, u=u, y=y[:7])
+    with pytest.raises(DataError, match=r"array `y` has 7 samples but `t` has 10"):
+        load_record(p)
+    np.savez(p, t=t, u=np.stack([u, u]), y=y)
+    with pytest.raises(DataError, match=r"array `u` must be one-dimensional, got shape \(2, 10\)"):
+        load_record(p)
+    np.savez(p, t=t, u=u, y=np.array(["a"] * 10))
+    with pytest.raises(DataError, match=r"array `y` is not numeric"):
+        load_record(p)
+    y_bad = y.copy()
+    y_bad[3] = np.nan
+    np.savez(p, t=t, u=u, y=y_bad)
+    with pytest.raises(DataError, match=r"d\.npz: column `y` holds nan"):
+        load_record(p)
+    p.write_bytes(b"not a zip archive")
+    with pytest.raises(DataError, match="cannot be read as NPZ"):
+        load_record(p)
+
+
+def test_record_shape_mismatch():
+    t, u, y = _rows()
+    with pytest.raises(DataError, match=r"column `y` has shape \(4,\), expected \(10,\)"):
+        Record(t, u, y[:4])
+
+
+def test_data_error_is_a_value_error():
+    assert issubclass(DataError, ValueError)
+
+
+def test_builtin_data_files_all_load():
+    names = builtin_datasets()
+    assert len(names) >= 6
+    for name in names:
+        path = builtin_path(name)
+        if name.startswith("bh_"):
+            # B-H loops: columns loop, H, B (no time axis), read with NumPy.
+            data = np.loadtxt(path, delimiter=",", skiprows=1)
+            assert data.shape[1] == 3 and np.all(np.isfinite(data))
+            assert path.read_text().splitlines()[0] == "loop,H,B"
+        else:
+            rec = load_record(path)
+            assert rec.n_samples > 1000
+            assert np.all(np.diff(rec.t) > 0)
+    val = load_record(builtin_path("piezo_aye2018_validation.csv"))
+    assert "desired" in val.extras
+
+
+def test_builtin_path_unknown_name():
+    with pytest.raises(ValueError, match=r"no shipped data set 'nope\.csv'; available: .*piezo"):
+        builtin_path("nope.csv")

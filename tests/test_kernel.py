@@ -1,0 +1,441 @@
+"""The compiled play kernel against the pure-JAX scan, the associative scan and NumPy references.
+
+Outputs: the play bank H agrees with the scan to the last bit, the fused PI output to the rounding of
+a different summation order. Gradients (input, thresholds, weights, initial states) agree to a
+tolerance scaled by the dtype's epsilon, away from switching instants where the one-sided derivatives
+differ. Also: jit/vmap/grad composition, the whole-batch kernel call, the threaded batch path, the
+fallback when the extension is missing, and the error messages.
+"""
+
+import functools
+import os
+import re
+import subprocess
+import sys
+import textwrap
+
+import hypothesis.extra.numpy as hnp
+import hypothesis.strategies as st
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given
+
+import piest_jax as pj
+from piest_jax._kernel import _kernel as K
+
+import reference as ref
+
+needs_kernel = pytest.mark.skipif(
+    not K.available(),
+    reason="the compiled play kernel is not built in this installation (no C++ compiler at "
+    "install time, or PIEST_KERNEL_BUILD=0)",
+)
+
+DTYPES = (np.float32, np.float64)
+# (T, n): a single sample and play; more plays than one SIMD chunk, not a multiple of the lanes.
+SHAPES = ((1, 1), (40, 37))
+GRAD_T, GRAD_N = 40, 37
+
+
+@functools.partial(jax.jit, static_argnames="method")
+def _bank(u, r, x0, method):
+    return pj.play(u, r, x0, method=method)
+
+
+@functools.partial(jax.jit, static_argnames="method")
+def _pi(u, r, x0, w, method):
+    return pj.PIOperator(r, w, x0, method=method)(u)
+
+
+def _bank_loss(u, r, x0, g, method):
+    return jnp.sum(g * pj.play(u, r, x0, method=method))
+
+
+def _pi_loss(u, r, x0, w, g, method):
+    return jnp.sum(g * pj.PIOperator(r, w, x0, method=method)(u))
+
+
+_bank_grad = jax.jit(jax.grad(_bank_loss, argnums=(0, 1, 2)), static_argnames="method")
+_pi_grad = jax.jit(jax.grad(_pi_loss, argnums=(0, 1, 2, 3)), static_argnames="method")
+
+
+def _case(rng, t, n, dtype):
+    """A random walk input with random sorted thresholds, states, weights and output cotangent."""
+    u = rng.normal(0.0, 1.0, t).cumsum().astype(dtype)
+    r = np.sort(rng.uniform(0.0, 2.5, n)).astype(dtype)
+    x0 = rng.normal(0.0, 2.0, n).astype(dtype)
+    w = rng.normal(0.0, 1.0, n).astype(dtype)
+    return u, r, x0, w
+
+
+def _has_ties(u, r, x0):
+    """Whether some step, in the arrays' own precision, has the old state exactly on a bound, or a
+    zero threshold makes the two bounds coincide."""
+    if np.any(r == 0):
+        return True
+    x = x0.copy()
+    for ut in u:
+        lo, hi = ut - r, ut + r
+        if np.any(x == lo) or np.any(x == hi):
+            return True
+        x = np.maximum(lo, np.minimum(hi, x))
+    return False
+
+
+def _sum_tolerance(dtype, terms, scale):
+    # Reassociating a sum of `terms` products changes it by at most ~terms * eps * sum(|products|).
+    return 4.0 * terms * np.finfo(dtype).eps * scale + np.finfo(dtype).tiny
+
+
+def _assert_grads_close(got, want, dtype, terms):
+    for k, (a, b) in enumerate(zip(got, want)):
+        a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+        scale = max(1.0, float(np.max(np.abs(b))))
+        np.testing.assert_allclose(
+            a, b, rtol=0, atol=_sum_tolerance(dtype, terms, scale), err_msg=f"argument {k}"
+        )
+
+
+# Forward outputs ------------------------------------------------------------------------------
+
+
+@st.composite
+def _forward_cases(draw):
+    dtype = draw(st.sampled_from(DTYPES))
+    t, n = draw(st.sampled_from(SHAPES))
+    fl = functools.partial(st.floats, allow_subnormal=False, width=np.finfo(dtype).bits)
+    u = draw(hnp.arrays(dtype, t, elements=fl(-40, 40)))
+    r = draw(hnp.arrays(dtype, n, elements=fl(0, 15), unique=True))  # any order for the bank
+    x0 = draw(hnp.arrays(dtype, n, elements=fl(-50, 50)))
+    w = draw(hnp.arrays(dtype, n, elements=fl(-5, 5)))
+    return u, r, x0, w
+
+
+@needs_kernel
+@given(_forward_cases())
+def test_bank_equals_scan_and_associative_to_the_last_bit(case):
+    u, r, x0, _ = case
+    kernel = np.asarray(_bank(u, r, x0, "kernel"))
+    assert kernel.dtype == u.dtype
+    np.testing.assert_array_equal(kernel, np.asarray(_bank(u, r, x0, "scan")))
+    np.testing.assert_array_equal(kernel, np.asarray(_bank(u, r, x0, "associative")))
+    np.testing.assert_allclose(kernel, ref.play(u, r, x0), rtol=2 * np.finfo(u.dtype).eps, atol=0)
+
+
+@needs_kernel
+@given(_forward_cases())
+def test_fused_output_equals_scan_up_to_summation_order(case):
+    u, r, x0, w = case
+    sorted_r = np.sort(r)  # PIOperator needs strictly increasing thresholds
+    n = sorted_r.shape[0]
+    kernel = np.asarray(_pi(u, sorted_r, x0, w, "kernel"), np.float64)
+    scan = np.asarray(_pi(u, sorted_r, x0, w, "scan"), np.float64)
+    h = ref.play(u, sorted_r, x0)
+    scale = np.abs(h) @ np.abs(w.astype(np.float64))
+    bound = _sum_tolerance(u.dtype, n, scale)
+    assert np.all(np.abs(kernel - scan) <= bound)
+    # And the kernel alone against the float64 reference, to the dtype's rounding.
+    assert np.all(np.abs(kernel - ref.pi(u, sorted_r, w, x0)) <= bound + 2 * np.finfo(u.dtype).eps * scale)
+
+
+@needs_kernel
+def test_stop_and_final_states_use_the_kernel_exactly(rng):
+    for dtype in DTYPES:
+        u, r, x0, w = _case(rng, 50, 9, dtype)
+        e_k = pj.stop(u, r, x0, method="kernel")
+        np.testing.assert_array_equal(e_k, pj.stop(u, r, x0, method="scan"))
+        op_k = pj.PIOperator(r, w, x0, method="kernel")
+        op_s = pj.PIOperator(r, w, x0, method="scan")
+        np.testing.assert_array_equal(op_k.final_states(u), op_s.final_states(u))
+        np.testing.assert_array_equal(op_k.regressor(u), op_s.regressor(u))
+
+
+# Gradients ------------------------------------------------------------------------------------
+
+
+@st.composite
+def _grad_cases(draw):
+    """Continuous random draws (hypothesis picks the seed, dtype and scales), without ties."""
+    dtype = draw(st.sampled_from(DTYPES))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    u_scale = draw(st.floats(0.05, 5.0))
+    r_scale = draw(st.floats(0.1, 3.0))
+    u = (rng.normal(0.0, u_scale, GRAD_T).cumsum() + rng.normal(0.0, 1.0)).astype(dtype)
+    r = np.sort(rng.uniform(0.0, r_scale, GRAD_N)).astype(dtype)
+    x0 = rng.normal(0.0, 2.0 * r_scale, GRAD_N).astype(dtype)
+    w = rng.normal(0.0, 1.0, GRAD_N).astype(dtype)
+    g = rng.normal(0.0, 1.0, (GRAD_T, GRAD_N)).astype(dtype)
+    return u, r, x0, w, g
+
+
+@needs_kernel
+@given(_grad_cases())
+def test_bank_gradients_agree_across_methods(case):
+    u, r, x0, _, g = case
+    if _has_ties(u, r, x0):
+        return  # at a switching instant the methods take different one-sided derivatives
+    want = _bank_grad(u, r, x0, g, method="scan")
+    for method in ("kernel", "associative"):
+        got = _bank_grad(u, r, x0, g, method=method)
+        assert all(a.dtype == u.dtype for a in got)
+        _assert_grads_close(got, want, u.dtype, GRAD_T * GRAD_N)
+
+
+@needs_kernel
+@given(_grad_cases())
+def test_fused_gradients_agree_across_methods(case):
+    u, r, x0, w, g = case
+    if _has_ties(u, r, x0):
+        return
+    gy = g[:, 0]
+    # The associative path of the fused output is the associative bank times w, covered above.
+    want = _pi_grad(u, r, x0, w, gy, method="scan")
+    got = _pi_grad(u, r, x0, w, gy, method="kernel")
+    _assert_grads_close(got, want, u.dtype, GRAD_T * GRAD_N)
+
+
+@needs_kernel
+def test_kernel_gradients_match_finite_differences(rng):
+    # Central differences of the float64 NumPy reference; the output is piecewise linear in every
+    # argument, so away from switching instants a small step is exact up to rounding.
+    u, r, x0, w = _case(rng, 30, 6, np.float64)
+    gy = rng.normal(size=30)
+    assert not _has_ties(u, r, x0)
+    grads = _pi_grad(u, r, x0, w, gy, method="kernel")
+    args = [u, r, x0, w]
+    h = 1e-6
+    for k, grad in enumerate(grads):
+        fd = np.empty_like(args[k])
+        for i in range(args[k].size):
+            plus = [a.copy() for a in args]
+            minus = [a.copy() for a in args]
+            plus[k][i] += h
+            minus[k][i] -= h
+            f = lambda a: gy @ ref.pi(a[0], a[1], a[3], a[2])  # noqa: E731
+            fd[i] = (f(plus) - f(minus)) / (2 * h)
+        np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-6, err_msg=f"argument {k}")
+
+
+@needs_kernel
+def test_gradient_at_a_kink_is_the_hold_branch():
+    # u climbs exactly onto the upper bound of a play at rest: x_{t-1} = u_t + r. The kernel counts
+    # the step as a hold, so d x_t / d u_t = 0 there and the cotangent flows to the initial state.
+    u = jnp.array([1.0, 0.0])
+    r = jnp.array([1.0])
+    x0 = jnp.array([1.0])
+    du, dr, dx0 = jax.grad(lambda *a: jnp.sum(K.bank(*a)), argnums=(0, 1, 2))(u, r, x0)
+    np.testing.assert_array_equal(du, [0.0, 0.0])
+    np.testing.assert_array_equal(dr, [0.0])
+    np.testing.assert_array_equal(dx0, [2.0])
+
+
+@needs_kernel
+def test_threshold_gradient_at_zero_is_the_right_derivative(rng):
+    # With r = 0 both bounds equal u and the scan's max/min tie splits the derivative; the kernel
+    # gives the derivative from the admissible side r > 0, where the play is piecewise linear in r.
+    u, r, x0, w = _case(rng, 30, 4, np.float64)
+    r[0] = 0.0
+    gy = rng.normal(size=30)
+    dr = _pi_grad(u, r, x0, w, gy, method="kernel")[1]
+    h = 1e-7
+    for j in range(4):
+        plus = r.copy()
+        plus[j] += h
+        minus = r.copy()
+        minus[j] -= h if j > 0 else 0.0
+        fd = gy @ (ref.pi(u, plus, w, x0) - ref.pi(u, minus, w, x0)) / (plus[j] - minus[j])
+        np.testing.assert_allclose(dr[j], fd, rtol=1e-6, atol=1e-6)
+    # Every other argument's gradient still agrees with the scan.
+    scan = _pi_grad(u, r, x0, w, gy, method="scan")
+    got = _pi_grad(u, r, x0, w, gy, method="kernel")
+    for k in (0, 2, 3):
+        np.testing.assert_allclose(got[k], scan[k], rtol=1e-12, atol=1e-11)
+
+
+# Composition with jit / vmap / grad ----------------------------------------------------------
+
+
+@needs_kernel
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_vmap_of_grad_with_batched_parameters(rng, dtype):
+    b = 3
+    cases = [_case(rng, 25, 7, dtype) for _ in range(b)]
+    u, r, x0, w = (np.stack(a) for a in zip(*cases))
+    gy = rng.normal(size=(b, 25)).astype(dtype)
+
+    def batched(method):
+        f = jax.grad(functools.partial(_pi_loss, method=method), argnums=(0, 1, 2, 3))
+        return jax.jit(jax.vmap(f))(u, r, x0, w, gy)
+
+    want, got = batched("scan"), batched("kernel")
+    _assert_grads_close(got, want, dtype, 25 * 7)
+    # Each row equals the unbatched kernel gradient to the last bit.
+    for i in range(b):
+        row = _pi_grad(u[i], r[i], x0[i], w[i], gy[i], method="kernel")
+        for a, c in zip(got, row):
+            np.testing.assert_array_equal(a[i], c)
+
+
+@needs_kernel
+def test_nested_vmap_and_grad_of_vmap(rng):
+    u = rng.normal(size=(2, 3, 20)).cumsum(-1)
+    r = np.array([0.05, 0.4, 1.1])
+    x0 = np.array([0.2, -0.3, 0.5])
+    nested = jax.vmap(jax.vmap(lambda v: pj.play(v, r, x0, method="kernel")))(u)
+    np.testing.assert_array_equal(nested, ref_batch(u, r, x0))
+
+    def loss(params, method):
+        rr, xx = params
+        per = jax.vmap(lambda v: jnp.sum(pj.play(v, rr, xx, method=method) ** 2))(u[0])
+        return jnp.sum(per)
+
+    _assert_grads_close(
+        jax.jit(jax.grad(loss), static_argnums=1)((r, x0), "kernel"),
+        jax.jit(jax.grad(loss), static_argnums=1)((r, x0), "scan"),
+        np.float64,
+        3 * 20 * 3,
+    )
+
+
+def ref_batch(u, r, x0):
+    return np.stack([np.stack([ref.play(v, r, x0) for v in row]) for row in u])
+
+
+@needs_kernel
+def test_vmap_hands_the_whole_batch_to_one_kernel_call(rng):
+    u = rng.normal(size=(5, 16))
+    r, x0, w = np.array([0.0, 0.5]), np.zeros(2), np.ones(2)
+    forward = lambda v: pj.PIOperator(r, w, x0, method="kernel")(v)  # noqa: E731
+    backward = jax.grad(lambda v: jnp.sum(forward(v)))
+    for fn, expected in (
+        (forward, ["piest_pi_fwd_f64"]),
+        (backward, ["piest_pi_fwd_res_f64", "piest_pi_bwd_f64"]),
+    ):
+        text = str(jax.make_jaxpr(jax.vmap(fn))(u))
+        calls = [
+            re.search(r"result_avals=\(ShapedArray\(([^)]*)\).*?target_name=(\w+)", c, re.S).groups()
+            for c in text.split("ffi_call[")[1:]
+        ]
+        assert [name for _, name in calls] == expected
+        assert all(aval == "float64[5,16]" for aval, _ in calls)  # one call for the whole batch
+        assert "while[" not in text and "scan[" not in text
+
+
+@needs_kernel
+def test_threaded_batch_equals_serial_rows(rng, monkeypatch):
+    # 8 x 400 x 32 lanes is above the kernel's threshold for splitting a batch across threads.
+    u = rng.normal(size=(8, 400)).cumsum(-1)
+    r = np.linspace(0.0, 3.0, 30)
+    x0 = rng.normal(size=30)
+    w = rng.normal(size=30)
+    f = jax.jit(jax.vmap(lambda v: pj.PIOperator(r, w, x0, method="kernel")(v)))
+    threaded = f(u)
+    monkeypatch.setenv("PIEST_KERNEL_THREADS", "1")
+    serial = f(u)
+    np.testing.assert_array_equal(threaded, serial)
+    for i in range(u.shape[0]):
+        np.testing.assert_array_equal(threaded[i], _pi(u[i], r, x0, w, "kernel"))
+
+
+# Fallback and errors -------------------------------------------------------------------------
+
+
+@pytest.fixture
+def without_extension(monkeypatch):
+    monkeypatch.setattr(K, "_ext", None)
+    monkeypatch.setattr(K, "_IMPORT_ERROR", "simulated: no module named _play_kernel")
+    K._warn_fallback.cache_clear()
+    yield
+    K._warn_fallback.cache_clear()
+
+
+@pytest.mark.parametrize("method", ["kernel", "auto"])
+def test_missing_extension_falls_back_to_the_scan_and_warns_once(rng, without_extension, method):
+    u, r, x0, w = _case(rng, 20, 4, np.float64)
+    assert not K.available()
+    with pytest.warns(RuntimeWarning, match="falls back to the pure-JAX scan") as record:
+        h = pj.play(u, r, x0, method=method)
+        y = pj.PIOperator(r, w, x0, method=method)(u)
+        pj.play(u, r, x0, method=method)
+    assert len(record) == 1
+    assert "simulated: no module named _play_kernel" in str(record[0].message)
+    np.testing.assert_array_equal(h, pj.play(u, r, x0, method="scan"))
+    np.testing.assert_array_equal(y, pj.PIOperator(r, w, x0, method="scan")(u))
+
+
+def test_scan_and_associative_never_touch_the_kernel(rng, without_extension):
+    import warnings
+
+    u, r, x0, _ = _case(rng, 10, 3, np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pj.play(u, r, x0, method="scan")
+        pj.play(u, r, x0, method="associative")
+
+
+def test_unimportable_extension_in_a_fresh_process():
+    # The import itself fails (as after an install without a compiler); the package still imports.
+    code = textwrap.dedent(
+        """
+        import sys, warnings
+        sys.modules["piest_jax._kernel._play_kernel"] = None
+        import numpy as np
+        import piest_jax as pj
+        from piest_jax._kernel import available
+        assert not available()
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            a = pj.play(np.arange(6.0), [0.0, 1.0], method="kernel")
+            b = pj.play(np.arange(6.0), [0.0, 1.0], method="kernel")
+        assert len(rec) == 1 and "falls back" in str(rec[0].message), rec
+        assert np.array_equal(a, pj.play(np.arange(6.0), [0.0, 1.0])) and np.array_equal(a, b)
+        print("ok")
+        """
+    )
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
+
+
+def test_kernel_refuses_a_non_cpu_backend(monkeypatch):
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    with pytest.raises(ValueError, match="runs on CPU only"):
+        K.use_kernel("kernel")
+    assert K.use_kernel("auto") is False
+
+
+@needs_kernel
+def test_bad_shapes_and_dtypes_raise():
+    u = jnp.zeros(5)
+    r = jnp.array([0.0, 1.0])
+    with pytest.raises(ValueError, match=r"one signal u of shape \(T,\)"):
+        K.bank(jnp.zeros((2, 5)), r, r)
+    with pytest.raises(ValueError, match=r"thresholds r of shape \(n,\)"):
+        K.bank(u, jnp.zeros(()), jnp.zeros(()))
+    with pytest.raises(ValueError, match=r"`x0` of shape \(2,\), got \(3,\)"):
+        K.bank(u, r, jnp.zeros(3))
+    with pytest.raises(ValueError, match=r"`w` of shape \(2,\), got \(1,\)"):
+        K.pi_output(u, r, r, jnp.zeros(1))
+    with pytest.raises(ValueError, match="one dtype for all arguments"):
+        K.bank(u, r.astype(jnp.float32), r)
+    with pytest.raises(ValueError, match="supports float32 and float64, got float16"):
+        K.bank(u.astype(jnp.float16), r.astype(jnp.float16), r.astype(jnp.float16))
+    # Through the public API the usual validation comes first.
+    with pytest.raises(ValueError, match=r"must be one signal of shape \(T,\)"):
+        pj.play(jnp.zeros((2, 5)), r, method="kernel")
+    with pytest.raises(ValueError, match="unknown play method"):
+        pj.PIOperator(r, r, method="numba")
+
+
+@needs_kernel
+def test_a_binary_for_missing_cpu_features_is_refused(monkeypatch):
+    # A kernel compiled with AVX2/FMA and copied to a CPU without them must not be loaded.
+    assert K._missing_isa(()) == []
+    monkeypatch.setattr(K, "_missing_isa", lambda required: ["avx2", "fma"])
+    ext, reason = K._load()
+    assert ext is None
+    assert "compiled for avx2, fma, which this CPU lacks" in reason
+    assert "PIEST_KERNEL_NATIVE=0" in reason

@@ -1,0 +1,263 @@
+"""The Monte Carlo PE map: per-draw statistics against NumPy loops, the sharper condition on
+constructed cases, reproducibility, chunking and sharding invariance, and the CLI."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from reference import play as ref_play
+
+import piest_jax as pj
+from piest_jax import _montecarlo as M
+from piest_jax._cli import main
+from piest_jax._families import FAMILIES, draw_case
+from piest_jax._signals import triangle
+
+SETTINGS = dict(n_samples=600, n_plays=4, window=150, stride=15, dt=0.01)
+N_DRAWS, CHUNK, SEED = 168, 84, 11
+
+
+@pytest.fixture(scope="module")
+def settings():
+    return M.make_settings(**SETTINGS, dtype="float64")
+
+
+@pytest.fixture(scope="module")
+def pemap(settings):
+    return M.pe_map(jax.random.key(SEED), N_DRAWS, settings, chunk=CHUNK, quiet=True)
+
+
+def _reference(u, r, x0, w, s):
+    """Every per-draw statistic by plain loops over windows, in float64."""
+    H = ref_play(u, r, x0)
+    n = len(r)
+    lo, hi, ranges, excited, holds = [], [], [], [], []
+    for st in range(0, s.n_samples - s.window + 1, s.stride):
+        Hw, uw = H[st : st + s.window], u[st : st + s.window]
+        ev = np.linalg.eigvalsh(Hw.T @ Hw / s.window)
+        lo.append(ev[0])
+        hi.append(ev[-1])
+        ranges.append(np.ptp(uw))
+        moving = np.ptp(Hw, axis=0) > 0
+        excited.append(moving)
+        # distinct shapes: moving plays whose difference is not constant over the window
+        reps = []
+        for i in np.flatnonzero(moving):
+            if not any(np.ptp(Hw[:, i] - Hw[:, j]) <= 1e-9 for j in reps):
+                reps.append(i)
+        steps = np.sum(np.any(np.diff(Hw, axis=0) != 0, axis=1))
+        zero = np.any(~moving & (np.abs(Hw[0]) <= 1e-12))
+        holds.append(n <= min(len(reps), steps) + 1 and not zero)
+    est = pj.ContinuousRLS(s.P0, s.dt)
+    Wk = pj.estimate(est, H[: s.rls_samples], H[: s.rls_samples] @ w).weights[-1]
+    lo, hi = np.array(lo), np.array(hi)
+    return dict(
+        rho=min(ranges) / (2 * r[-1]),
+        c1=lo.min(),
+        c1_normalised=np.min(lo / hi),
+        excited=np.array(excited),
+        min_excited=np.array(excited).sum(axis=1).min(),
+        sharper=all(holds),
+        weight_error=np.linalg.norm(np.asarray(Wk) - w) / np.linalg.norm(w),
+        scale=hi.max(),
+    )
+
+
+def _case(settings, i):
+    key = M.draw_keys(jax.random.key(SEED), i, 1)[0]
+    t = jnp.arange(settings.n_samples) * settings.dt
+    family = int(M.draw_family(i, settings))
+    draw = jax.jit(draw_case, static_argnums=(1, 3))
+    return [np.asarray(a) for a in draw(key, family, t, settings.n_plays)]
+
+
+@pytest.mark.parametrize("i", [0, 16, 25, 34])  # sine, noise, triangle, steps
+def test_draws_match_numpy_reference(pemap, settings, i):
+    assert FAMILIES[pemap["family"][i]] == FAMILIES[i % 7]
+    u, r, x0, w = _case(settings, i)
+    # drawn here op by op, in the engine fused: the same numbers up to rounding
+    np.testing.assert_allclose(pemap["thresholds"][i], r, rtol=1e-13)
+    ref = _reference(u, r, x0, w, settings)
+    np.testing.assert_allclose(pemap["rho"][i], ref["rho"], rtol=1e-12)
+    np.testing.assert_allclose(pemap["c1"][i], ref["c1"], atol=1e-10 * ref["scale"])
+    np.testing.assert_allclose(pemap["c1_normalised"][i], ref["c1_normalised"], atol=1e-10)
+    np.testing.assert_array_equal(pemap["excited"][i], ref["excited"])
+    assert pemap["min_excited"][i] == ref["min_excited"]
+    assert pemap["sharper"][i] == ref["sharper"]
+    np.testing.assert_allclose(pemap["weight_error"][i], ref["weight_error"], rtol=1e-5, atol=1e-9)
+
+
+def test_map_counts(pemap, settings):
+    s = M.summarise(pemap, settings)
+    assert s["n"] == N_DRAWS
+    # the map covers both sides of Assumption 1 and both outcomes
+    assert 0 < s["assumption_holds"] < N_DRAWS and 0 < s["pe"] < N_DRAWS
+    # the sharper condition is necessary for PE: no draw fails it and is still PE
+    assert s["sharper_fails_pe"] == 0
+    # every counterexample to Theorem 1 on this map is one the sharper condition explains
+    assert s["theorem_violations_failing_sharper"] == s["theorem_violations"]
+    assert sum(f["n"] for f in s["per_family"].values()) == N_DRAWS
+
+
+CASE = dict(n_samples=2001, n_plays=3, window=300, stride=10, dt=2e-3)
+T_CASE = np.arange(2001) * 2e-3
+
+
+def _stats(u, r, x0, w=None):
+    s = M.make_settings(**CASE, dtype="float64")
+    w = np.ones(len(r)) if w is None else w
+    out = jax.jit(M.draw_statistics, static_argnums=4)(
+        jnp.asarray(u), jnp.asarray(r, float), jnp.asarray(x0, float), jnp.asarray(w, float), s
+    )
+    return {k: np.asarray(v) for k, v in out.items()}, M.numerical_tolerance("float64")
+
+
+def test_paper_setting_is_pe():
+    st, tol = _stats(10 * np.sin(2 * np.pi * 5 * T_CASE), [0, 10 / 3, 20 / 3], [0, 0, 0])
+    assert st["rho"] >= 1 and st["c1_normalised"] > tol and st["sharper"]
+    assert st["weight_error"] < 1e-3
+
+
+def test_theorem1_counterexample():
+    # A triangle of amplitude 4 r_max: windows at a turn have range 2.4 r_max (rho = 1.2), but a
+    # window inside a rising leg, once every play rides its envelope, has H_j = u - r_j for all j:
+    # three plays in span{1, u}. Assumption 1 holds; the plays are not PE.
+    st, tol = _stats(np.asarray(triangle(T_CASE, 4.0, 0.5)), [0.25, 0.5, 1.0], [0, 0, 0])
+    assert st["rho"] >= 1.1
+    assert st["c1_normalised"] <= tol
+    assert not st["sharper"]
+
+
+def test_frozen_plays():
+    u = 0.3 * np.sin(2 * np.pi * T_CASE)
+    # two plays frozen (|u - x0| <= r all along): linearly dependent, detected
+    st, tol = _stats(u, [0.0, 0.5, 1.0], [0.0, 0.1, -0.4])
+    assert st["rho"] < 1 and st["c1_normalised"] <= tol and not st["sharper"]
+    assert st["min_excited"] == 1 and not st["excited"][:, 1:].any()
+    # one play frozen at a non-zero value, the others moving differently: PE below Assumption 1
+    st, tol = _stats(u, [0.0, 0.1, 0.5], [0.0, 0.0, 0.1])
+    assert st["rho"] < 1 and st["c1_normalised"] > tol and st["sharper"]
+    # the same play frozen at zero is a zero column: not PE
+    st, tol = _stats(u, [0.0, 0.1, 0.5], [0.0, 0.0, 0.0])
+    assert st["c1_normalised"] <= tol and not st["sharper"] and st["zero_frozen"]
+
+
+def test_sharper_condition_public():
+    u = triangle(jnp.asarray(T_CASE), 4.0, 0.5)
+    H = pj.play(u, jnp.array([0.25, 0.5, 1.0]))
+    holds = jax.jit(M.sharper_condition, static_argnums=2, static_argnames="stride")(
+        H, u, 300, stride=10
+    )
+    assert holds.shape == (171,) and holds.any() and not holds.all()
+    with pytest.raises(ValueError, match="must be between 1 and the signal length"):
+        M.sharper_condition(H, u, 3000)
+    with pytest.raises(ValueError, match=r"`H` must be \(T, n\)"):
+        M.sharper_condition(H[:, 0], u, 30)
+
+
+def test_same_seed_same_map_other_seed_differs(pemap, settings):
+    again = M.pe_map(jax.random.key(SEED), N_DRAWS, settings, chunk=CHUNK, quiet=True)
+    for k in ("rho", "c1", "excited", "weight_error", "family"):
+        np.testing.assert_array_equal(again[k], pemap[k])
+    other = M.pe_map(jax.random.key(SEED + 1), CHUNK, settings, chunk=CHUNK, quiet=True)
+    same = np.all(other["thresholds"] == pemap["thresholds"][:CHUNK], axis=1)
+    assert not same.any()
+
+
+def _assert_same_map(a, b):
+    """Discrete results equal; floats equal up to the summation order a batch size may choose."""
+    for k in ("family", "excited", "min_excited", "redundant", "sharper", "thresholds"):
+        np.testing.assert_array_equal(a[k], b[k])
+    for k in ("rho", "c1", "c1_normalised"):
+        np.testing.assert_allclose(a[k], b[k], rtol=1e-12, atol=1e-15)
+    # (I + P0 A)⁻¹ W amplifies the rounding of A by up to P0 λmax(A)
+    np.testing.assert_allclose(a["weight_error"], b["weight_error"], rtol=1e-8)
+
+
+def test_chunking_invariance(pemap, settings):
+    # draws 42..91 in one (padded) chunk of 84: the chunks of the fixture split them at 84
+    part = M.pe_map(jax.random.key(SEED), 50, settings, chunk=CHUNK, start=42, quiet=True)
+    _assert_same_map(part, {k: v[42:92] for k, v in pemap.items() if k != "seconds"})
+    with pytest.raises(ValueError, match="`start` must be a non-negative multiple of 7"):
+        M.pe_map(jax.random.key(SEED), 50, settings, start=5)
+
+
+def test_sharded_equals_single_device(pemap, tmp_path):
+    script = textwrap.dedent(
+        f"""
+        import jax, numpy as np
+        jax.config.update("jax_enable_x64", True)
+        from piest_jax import _montecarlo as M
+        assert len(jax.devices()) == 4, jax.devices()
+        s = M.make_settings(**{SETTINGS!r}, dtype="float64")
+        fn, sharding = M._engine(s, tuple(jax.devices()))
+        out = fn(jax.device_put(M.draw_keys(jax.random.key({SEED}), 0, 56), sharding))
+        assert len(out["rho"].sharding.device_set) == 4
+        res = M.pe_map(jax.random.key({SEED}), {N_DRAWS}, s, chunk=56, quiet=True)
+        np.savez(r"{tmp_path / "sharded.npz"}", **{{k: v for k, v in res.items() if k != "seconds"}})
+        """
+    )
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
+    env["JAX_PLATFORMS"] = "cpu"
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    sharded = np.load(tmp_path / "sharded.npz")
+    _assert_same_map(sharded, pemap)
+
+
+def test_settings_errors():
+    with pytest.raises(ValueError, match="`n_samples` must be a whole number >= 2"):
+        M.make_settings(n_samples=0)
+    with pytest.raises(ValueError, match=r"`window` \(700\) is longer than the signal \(600"):
+        M.make_settings(n_samples=600, window=700)
+    with pytest.raises(ValueError, match="`stride` must be a whole number >= 1"):
+        M.make_settings(n_samples=600, stride=0)
+    with pytest.raises(ValueError, match="`P0` must be a positive finite number"):
+        M.make_settings(n_samples=600, P0=-1.0)
+    with pytest.raises(ValueError, match="unknown input family 'square'"):
+        M.make_settings(n_samples=600, families=["sine", "square"])
+    s = M.make_settings(n_samples=600)
+    with pytest.raises(ValueError, match="`n_draws` must be a positive whole number"):
+        M.pe_map(jax.random.key(0), 0, s)
+
+
+def test_cli_writes_map(tmp_path, pemap, capsys):
+    out = tmp_path / "map"
+    args = ["montecarlo", "--inputs", str(CHUNK), "--samples", "600", "--seed", str(SEED)]
+    args += ["--plays", "4", "--window", "150", "--stride", "15", "--dt", "0.01"]
+    assert main(args + ["--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out.split()
+    assert printed == [str(out / "pe_map.png"), str(out / "pe_map.json")]
+    assert (out / "pe_map.png").stat().st_size > 10_000
+    rep = json.loads((out / "pe_map.json").read_text())
+    for k in ("n_inputs", "theorem_violations", "pe_fraction_below_assumption", "seconds"):
+        assert k in rep
+    assert rep["n_inputs"] == CHUNK and rep["tolerance"] == M.numerical_tolerance("float64")
+    np.testing.assert_array_equal(rep["draws"]["rho"], pemap["rho"][:CHUNK])
+    pe = pemap["c1_normalised"][:CHUNK] > rep["tolerance"]
+    assert rep["theorem_violations"] == int(np.sum((pemap["rho"][:CHUNK] >= 1) & ~pe))
+    # refuses to overwrite without --force
+    assert main(args + ["--out", str(out), "--quiet"]) == 2
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (["--inputs", "0"], "must be positive"),
+        (["--samples", "-5"], "must be positive"),
+        (["--samples", "100", "--window", "200"], "longer than the signal"),
+        (["--families", "sine,square"], "unknown --families"),
+    ],
+)
+def test_cli_rejects_bad_arguments(tmp_path, capsys, bad, message):
+    with pytest.raises(SystemExit) as exc:
+        code = main(["montecarlo", "--out", str(tmp_path / "x"), *bad])
+        raise SystemExit(code)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
