@@ -93,7 +93,7 @@ def _extensions() -> list[Extension]:
             sources=["piest_jax/_kernel/play_kernel.cc"],
             include_dirs=[include],
             language="c++",
-            extra_compile_args=["-O3", "-std=c++17", "-fvisibility=hidden", "-w"],
+            extra_compile_args=["-O3", "-g0", "-std=c++17", "-fvisibility=hidden", "-w"],
             extra_link_args=["-pthread"],
             optional=True,
         )

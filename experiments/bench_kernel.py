@@ -185,6 +185,7 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=15, seed=0):
     """
     if not available():
         raise SystemExit("the compiled play kernel is not built; reinstall with a C++ compiler")
+    load_at_start = list(os.getloadavg())
     rng = np.random.default_rng(seed)
     r = np.linspace(0.0, 1.5, N_PLAYS).astype(np.float32)
     w = rng.uniform(0.1, 1.0, N_PLAYS).astype(np.float32)
@@ -257,7 +258,9 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=15, seed=0):
         "rounds": rounds,
         "timing": "minimum wall time over interleaved rounds (3 for rows over 1 s), after a warm-up",
         "cpu_count": os.cpu_count(),
+        "load_average_at_start": load_at_start,
         "load_average_at_end": list(os.getloadavg()),
+        "process_nice": os.nice(0),
         "machine": platform.machine(),
         "python": sys.version.split()[0],
         "jax": jax.__version__,

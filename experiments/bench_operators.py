@@ -20,6 +20,12 @@ y (B, T) without H):
 Every timing is the minimum over repeats after one warm-up call that also compiles, with
 `block_until_ready`. Each row also records its largest deviation from the NumPy loop's outputs.
 
+Backward column (`grad_seconds`, fused output, `jax_scan` and `kernel` rows): `jit(vmap(grad))` of
+<g, y> with respect to the input, thresholds, weights and initial states, i.e. the forward pass that
+keeps what the gradient needs plus the backward pass; `grad_over_forward` divides it by the row's
+forward time. The NumPy and Numba loops have no gradient; the associative scan's gradient at these
+sizes holds log2(T) levels of (B, T, n) intermediates, several GB, and is left out.
+
 Run: python experiments/bench_operators.py [--quick] [--repeats N] [--cases single,batch]
      [--out experiments/results/bench_operators.json]
 """
@@ -141,6 +147,16 @@ def _jax_fn(method, fused, r, w, x0):
     return lambda u: jax.block_until_ready(f(u))
 
 
+def _jax_grad_fn(method, r, w, x0, g):
+    # Cotangent g (B, T) of the fused output; gradients w.r.t. u, thresholds, weights, states.
+    def loss(u, r, w, x0, g):
+        return jnp.vdot(g, PIOperator(r, w, x0, method=method)(u))
+
+    f = jax.jit(jax.vmap(jax.grad(loss, argnums=(0, 1, 2, 3)), in_axes=(0, None, None, None, 0)))
+    r, w, x0, g = (jnp.asarray(a) for a in (r, w, x0, g))
+    return lambda u: jax.block_until_ready(f(u, r, w, x0, g))
+
+
 def _case(name, B, T, n, dtype, rng):
     u = np.cumsum(rng.normal(0.0, 0.1, (B, T)), axis=1).astype(dtype)
     r = np.linspace(0.0, 1.5, n).astype(dtype)
@@ -182,9 +198,14 @@ def main(argv=None) -> int:
                 timings = {"numpy_loop": (t_np, ref)}
                 if nb is not None:
                     timings["numba"] = _min_time(lambda: nb(u, r, w, x0, fused), args.repeats)
+                grads = {}
                 for m in methods:
                     f = _jax_fn(m.removeprefix("jax_"), fused, r, w, x0)
                     timings[m] = _min_time(lambda f=f: f(ju), args.repeats)
+                    if fused and m in ("jax_scan", "kernel"):
+                        g = rng.normal(size=u.shape).astype(dtype)
+                        gf = _jax_grad_fn(m.removeprefix("jax_"), r, w, x0, g)
+                        grads[m] = _min_time(lambda gf=gf: gf(ju), args.repeats)[0]
                 elems = B * T * n
                 for m, (sec, out) in timings.items():
                     dev = float(np.max(np.abs(np.asarray(out, np.float64) - ref)))
@@ -203,6 +224,9 @@ def main(argv=None) -> int:
                             "speedup_vs_numba": timings["numba"][0] / sec if nb else None,
                             "max_abs_dev_vs_numpy": dev,
                             "agrees": dev <= tol * (1 + float(np.max(np.abs(ref)))),
+                            "grad_seconds": grads.get(m),
+                            "grad_elements_per_s": elems / grads[m] if m in grads else None,
+                            "grad_over_forward": grads[m] / sec if m in grads else None,
                         }
                     )
                     r_ = rows[-1]
@@ -210,7 +234,12 @@ def main(argv=None) -> int:
                         f"{case:10s} {r_['dtype']:7s} {output:5s} {m:15s} "
                         f"{r_['elements_per_s'] / 1e6:10.1f} M elem/s  "
                         f"x{r_['speedup_vs_numpy']:8.1f} vs NumPy"
-                        + (f"  x{r_['speedup_vs_numba']:6.2f} vs Numba" if nb else ""),
+                        + (f"  x{r_['speedup_vs_numba']:6.2f} vs Numba" if nb else "")
+                        + (
+                            f"  grad {r_['grad_elements_per_s'] / 1e6:8.1f} M elem/s"
+                            if m in grads
+                            else ""
+                        ),
                         flush=True,
                     )
     result = {

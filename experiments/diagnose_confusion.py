@@ -4,7 +4,7 @@ Writes experiments/results/diagnose_confusion.json (rewritten after every record
 run keeps what it finished) and prints a markdown table. Each row is the hidden effect (or pair);
 each column what the diagnosis named first (or "none"); a record counts as right when the set of
 names equals the hidden set. The search runs with all seven candidates; the final RMSE is that of
-the chosen model (fitted on the fitting blocks) over the whole record, against the true noise std.
+the chosen model (fitted on the whole record) over the whole record, against the true noise std.
 `--shard i/k` runs every k-th record, for k processes; `--merge` combines their files.
 
     python experiments/diagnose_confusion.py --per-class 4 --pairs 2 --samples 500
@@ -23,7 +23,7 @@ jax.config.update("jax_enable_x64", True)
 from piest_jax import _diagnose, _effects, _hidden  # noqa: E402
 
 PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", "asymmetry"),
-         ("initial_state", "rate_dependence")]
+         ("initial_state", "rate_dependence"), ("rate_dependence", "offset_drift")]
 
 
 def jobs(per_class, pairs_per_class):
@@ -47,9 +47,9 @@ def run(args, shard, n_shards, save):
         k = jax.random.fold_in(jax.random.fold_in(key, ci), i)
         rec, truth = _hidden.generate(cls, key=k, n_samples=args.samples)
         t1 = time.time()
-        s = _diagnose.search(rec, refit=False)
-        _, rmse = _diagnose.evaluate(rec, s["scaling"], s["theta_final"], s["effects"])
-        _, rmse0 = _diagnose.evaluate(rec, s["scaling"], s["theta_base"], [])
+        s = _diagnose.search(rec)
+        _, rmse = _diagnose.evaluate(rec, s["scaling"], s["model_final"])
+        _, rmse0 = _diagnose.evaluate(rec, s["scaling"], s["model_base"])
         rows.append(dict(hidden=list(cls), named=s["effects"], pruned=s["pruned"], forms=truth["forms"],
                          noise_std=truth["noise_std"], baseline_rmse=rmse0, final_rmse=rmse,
                          noise_est=s["noise_std"], seconds=time.time() - t1))

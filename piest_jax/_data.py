@@ -109,7 +109,11 @@ def _parse_rows(lines, start, delim, names, source, *, trailing=False):
     # Line numbers (from 1) of the data rows, as one integer array: a long record costs 8 bytes a
     # row here, not a Python object per row.
     rows = np.fromiter(
-        (i + 1 for i in range(start, len(lines)) if not lines[i].lstrip().startswith("#") and lines[i].strip()),
+        (
+            i + 1
+            for i in range(start, len(lines))
+            if lines[i].strip() and not lines[i].lstrip().startswith("#")
+        ),
         dtype=np.int64,
     )
     if rows.size == 0:
@@ -226,6 +230,9 @@ def _existing(path):
         _fail(source, "no such file")
     if path.is_dir():
         _fail(source, "is a folder, not a data file")
+    if not path.is_file():
+        # A device or pipe (/dev/zero, a FIFO) could be read forever.
+        _fail(source, "is not a regular file")
     return path, source
 
 

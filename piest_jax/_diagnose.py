@@ -1,54 +1,56 @@
 """Name the effects a plain PI model misses: fit, score candidates on held-out blocks, repeat.
 
 The loop: fit the base PI model (offset, relaxed initial states); for every effect not yet in the
-model, add it, refit from the current fit, and measure the error on held-out blocks (contiguous,
-interleaved with the fitting blocks, so the model runs through them and start-up, holds and cycles
-are all represented). The best candidate is named only if its held-out gain is large against the
-noise floor, consistent across held-out blocks, and a real share of the remaining error; then the
-loop repeats on what remains. Long records are sub-sampled for the search (the model's time
-constants and delay are physical, so the chosen model is then evaluated at full rate).
+model, add it and fit it over its grid of nonlinear parameters (`_effects`), and measure the
+error on held-out blocks by blocked cross-validation (contiguous blocks, folds interleaved, the
+model running through every block so states carry across). The best candidate is named only if
+its held-out gain, less a charge per parameter, is large against the noise floor and a real share
+of the remaining error; then the loop repeats on what remains, and effects that a later one made
+redundant are dropped again. Long records are sub-sampled for the search; the model's time
+constants and delay are physical, so the chosen model is then fitted and evaluated at full rate.
 """
 
 import dataclasses
+import math
 
 import numpy as np
+from scipy import signal as _signal
 
-from . import _effects, _locate
+from . import _locate
+from . import _effects as _pj
 from ._data import DataError, Record
+from ._effects import EFFECTS
 
 MIN_SAMPLES = 200
 SEARCH_SAMPLES = 2048
-_BUCKETS = (512, 768, 1024, 1536, 2048)
-N_BLOCKS = 32
-# Naming thresholds, in units of the noise variance and of the current held-out MSE: an effect must
-# remove at least this much held-out error. (The per-block t statistic is reported but not used:
-# a real effect often lives in a few blocks, start-up or holds, where a t test across blocks is weak,
-# while the noise in the held-out gain itself is small, about 2 sigma |change| / sqrt(N).)
-MIN_GAIN_NOISE = 0.4
+N_BLOCKS = 64
+N_FOLDS = 4
+# Naming thresholds: the held-out MSE gain, less PARAM_PENALTY sigma^2 per parameter per sample,
+# must exceed MIN_GAIN_NOISE sigma^2 and MIN_GAIN_REL of the current held-out MSE. A gain below
+# about sigma^2 is what an imperfect form of the first effect leaves for a second one to pick up,
+# and it moves the RMSE by less than the 1.5x-noise tolerance a model is judged by.
+MIN_GAIN_NOISE = 1.2
 MIN_GAIN_REL = 0.03
-PARAM_PENALTY = 2.0  # held-out MSE is further charged PARAM_PENALTY * sigma^2 * p / N_heldout
+PARAM_PENALTY = 2.0
 MAX_EFFECTS = 3
-_DELAY_GRID = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)  # in full-rate samples
-# Where one start is not enough: the dynamics' natural frequency (in units of ten times the input's
-# dominant frequency) and damping have local minima; the better fit on the fitting blocks is kept.
-_EXTRA_STARTS = {
-    "linear_dynamics": [None, np.array([np.log(0.35), np.log(np.expm1(0.35))])],
-}
 
 
 def noise_std(y) -> float:
-    """The noise floor: a robust std of second differences over sqrt(6).
+    """The noise floor: a robust std of the residual of a local cubic fit over 7 samples.
 
-    For white noise of std sigma on a smooth signal, the second difference has std sigma sqrt(6); the
-    median absolute deviation ignores the few samples at reversals and steps.
+    The local cubic (Savitzky-Golay) follows the signal, loops and reversals included, so the
+    residual is noise: for white noise of std sigma its variance is sigma^2 (1 - h0), with h0 the
+    smoother's central weight; the median absolute deviation ignores the few samples at kinks.
 
     **Arguments:** `y`, a sampled signal (T,).
 
     **Returns:** the estimated noise std.
     """
-    d2 = np.diff(np.asarray(y, float), 2)
-    mad = np.median(np.abs(d2 - np.median(d2)))
-    return float(1.4826 * mad / np.sqrt(6.0))
+    y = np.asarray(y, float)
+    r = y - _signal.savgol_filter(y, 7, 3, mode="interp")
+    h0 = _signal.savgol_coeffs(7, 3)[3]
+    mad = np.median(np.abs(r - np.median(r)))
+    return float(1.4826 * mad / np.sqrt(1 - h0))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,133 +133,116 @@ def scaling_of(rec: Record) -> Scaling:
     )
 
 
-def model_data(rec: Record, sc: Scaling, *, step=1, length=None, fit_w=None):
-    """A record in the model's normalised units, optionally sub-sampled and padded to `length`."""
-    import jax.numpy as jnp
+def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) -> _pj.Prepared:
+    """A record in the identification record's normalised units, optionally sub-sampled.
 
-    u = (rec.u - sc.u_mid) / sc.u_half
-    y = (rec.y - sc.y_mid) / sc.y_half
-    rho = np.abs(np.gradient(u, rec.t)) / sc.rate_scale
-    s = (rec.t - rec.t[0]) / max(rec.t[-1] - rec.t[0], 1e-300)
-    u, y, rho, s = (a[::step] for a in (u, y, rho, s))
-    n = len(u)
-    w = np.ones(n) if fit_w is None else np.asarray(fit_w, float)
-    if length is not None and length > n:
-        pad = length - n
-        u, y, rho, s = (np.concatenate([a, np.full(pad, a[-1])]) for a in (u, y, rho, s))
-        w = np.concatenate([w, np.zeros(pad)])
-    f = lambda a: jnp.asarray(a, dtype=jnp.float64)  # noqa: E731
-    return _effects.ModelData(
-        f(u), f(y), f(rho), f(s), f(w), f(rec.dt * step), f(sc.delay_unit), f(sc.omega_ref),
-        f(sc.period),
-    )
+    **Arguments:** `rec`; `sc`, the identification record's `Scaling`; `step`, keep every
+    `step`-th sample; `folds`, assign the samples to interleaved cross-validation folds of
+    contiguous blocks.
 
-
-def _base_start(data, n):
-    """Base parameters with weights from linear least squares on the starting threshold grid."""
-    import jax.numpy as jnp
-
-    from ._play import play
-
-    th = _effects.initial_params()
-    r = np.asarray(_effects.thresholds_of(jnp.asarray(th)))
-    u = np.asarray(data.u)[:n]
-    X = np.asarray(play(u, r, u[0]))
-    A = np.column_stack([X, np.ones(n)])
-    w = np.asarray(data.fit_w)[:n]
-    coef, *_ = np.linalg.lstsq(A * w[:, None], np.asarray(data.y)[:n] * w, rcond=None)
-    base = _effects._sl("base")
-    th[base.start + _effects.N_PLAYS - 1 : base.stop] = coef
-    return th
-
-
-def _bucket(n):
-    """A padded length from a few sizes, so records of similar length share one compilation."""
-    fits = [b for b in _BUCKETS if b >= n]
-    return fits[0] if fits else int(np.ceil(n / _BUCKETS[-1])) * _BUCKETS[-1]
-
-
-def _blocks(n):
-    return np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1)
-
-
-def _score(pred_cur, pred_new, y, held, blocks):
-    e_cur, e_new = (pred_cur - y) ** 2, (pred_new - y) ** 2
-    d = np.array([np.mean((e_cur - e_new)[held & (blocks == b)]) for b in np.unique(blocks[held])])
-    t = d.mean() / (d.std(ddof=1) / np.sqrt(len(d)) + 1e-300)
-    return float(np.mean(e_cur[held]) - np.mean(e_new[held])), float(t)
-
-
-def _delay_starts(theta, names, data, y, fit_mask, n):
-    """Two starts for the delay, each from the best of a log-spaced grid on the fitting blocks.
-
-    The delay enters through interpolation, so its error surface is rippled at the scale of a
-    sample and the solver alone can stall far from a delay of many samples. Worse, a plain PI fit
-    absorbs a delay by widening its loop, so the current fit is a poor start for a long delay. The
-    second start therefore goes back to the neutral threshold grid and, for each delay on the grid,
-    refits the weights and offset by linear least squares on the delayed play outputs.
+    **Returns:** an `_effects.Prepared`.
     """
-    import jax.numpy as jnp
-
-    from ._play import play
-
-    g = jnp.asarray(_effects.group_mask(names))
-    sl, base = _effects._sl("delay"), _effects._sl("base")
-    wsl = slice(base.start + _effects.N_PLAYS - 1, base.stop)
-    steps = float(data.delay_unit / data.dt)
-    neutral = _effects.initial_params()
-    r = np.asarray(_effects.thresholds_of(jnp.asarray(neutral)))
-    u = np.asarray(data.u)[:n]
-    X = np.asarray(play(u, r, u[0]))
-    idx = np.arange(n, dtype=float)
-    w = fit_mask.astype(float)
-    best_cur = best_new = None
-    for d in _DELAY_GRID:
-        th = theta.copy()
-        th[sl] = np.log(np.expm1(d))
-        pred = np.asarray(_effects.predict_jit(jnp.asarray(th), g, data))[:n]
-        sse = float(np.sum(((pred - y) ** 2)[fit_mask]))
-        if best_cur is None or sse < best_cur[0]:
-            best_cur = (sse, th)
-        Xd = np.column_stack([np.interp(idx - d * steps, idx, X[:, j]) for j in range(X.shape[1])] + [np.ones(n)])
-        coef, *_ = np.linalg.lstsq(Xd * w[:, None], y * w, rcond=None)
-        sse = float(np.sum(((Xd @ coef - y) ** 2)[fit_mask]))
-        if best_new is None or sse < best_new[0]:
-            th = theta.copy()
-            th[base] = neutral[base]
-            th[wsl] = coef
-            th[sl] = np.log(np.expm1(d))
-            best_new = (sse, th)
-    return [best_cur[1], best_new[1]]
+    u = ((rec.u - sc.u_mid) / sc.u_half)[::step]
+    y = ((rec.y - sc.y_mid) / sc.y_half)[::step]
+    t = rec.t[::step]
+    f = None
+    if folds:
+        blocks = np.minimum((np.arange(len(u)) * N_BLOCKS) // len(u), N_BLOCKS - 1)
+        f = blocks % N_FOLDS
+    return _pj.Prepared(u, y, t, sc.rate_scale, sc.period, f)
 
 
-def _prune(named, theta, pred, run_fit, y, held, sigma2, n_held):
+def _fit_many(p, cfg, effect, values):
+    """Each grid value of `effect` added to `cfg`: (held-out MSE, value) of the best one."""
+    play_side = effect in ("initial_state", "rate_dependence", "asymmetry")
+    H = None if play_side else _pj.play_columns(p, cfg)
+    if effect == "initial_state":
+        # All histories at once: one pass of the plays with a batch of initial states.
+        g, r = _pj.play_inputs(p, cfg)
+        Hs = _pj.plays(g, r, np.stack([_pj.history_states(g[0], tr) for tr in values]))
+
+    def sse(q, i):
+        c = {**cfg, effect: q}
+        f = _pj.fit(p, c, X=_pj.linear_part(p, c, Hs[i] if effect == "initial_state" else H))
+        return float(np.sum((f.A @ f.w - f.target) ** 2)), f
+
+    # The grid and its refinement are searched by the fitting error (one or two nonlinear
+    # parameters cannot overfit), and only the chosen value is scored on held-out blocks.
+    best = min(((*sse(q, i), q) for i, q in enumerate(values)), key=lambda b: b[0])
+    for level in range(4):
+        # A local refinement below the grid's spacing (a pattern search, moving while it gains):
+        # the chosen model should fit as well as the effect's form allows, or the gap left
+        # would be taken for a second effect.
+        for _ in range(4):
+            near = [(*sse(q, None), q) for q in _pj.neighbours(effect, best[2], level)]
+            new = min([best, *near], key=lambda b: b[0])
+            if new[2] is best[2]:
+                break
+            best = new
+    f = best[1]
+    return _pj.cv_mse(p, f.A, {**cfg, effect: best[2]}, f.target)[0], best[2]
+
+
+def _cv(p, cfg):
+    f = _pj.fit(p, cfg)
+    return _pj.cv_mse(p, f.A, cfg, f.target)[0]
+
+
+def _significant(gain, n_params, cur_mse, sigma2, n):
+    score = (gain - PARAM_PENALTY * sigma2 * n_params / n) / sigma2
+    return score, bool(score > MIN_GAIN_NOISE and gain > MIN_GAIN_REL * cur_mse)
+
+
+def _revisit(p, cfg, named, candidates, cur):
+    """Re-choose each named effect given the others (one backfitting pass).
+
+    An effect named while a second one was still unmodelled may have been the best stand-in for
+    the pair (a lag for a delay seen through a saturation); with the second in place, the first
+    is chosen again among all candidates, its own form and parameters included, and then the
+    second given the new first.
+    """
+    for sweep in range(4):
+        before = cur
+        for e in list(named):
+            rest = {k: v for k, v in cfg.items() if k != e}
+            best = (cur, e, cfg[e])
+            # The first sweep may swap effects; later ones re-fit each effect's own parameters
+            # given the others (coordinate descent: a delay and an envelope trade off).
+            for c in candidates if sweep == 0 else [e]:
+                if c in rest:
+                    continue
+                mse, q = _fit_many(p, rest, c, _pj.grid(c, p))
+                if mse < best[0]:
+                    best = (mse, c, q)
+            named = [best[1] if x == e else x for x in named]
+            cfg, cur = {**rest, best[1]: best[2]}, best[0]
+        if sweep > 0 and cur > 0.99 * before:
+            break
+    return cfg, named, cur
+
+
+def _prune(p, cfg, named, sigma2):
     """Drop a named effect that a later one made redundant (backward elimination).
 
-    A first-order lag can stand in for a delay, a delay for a lag: when the later effect explains
-    what the earlier one did, the model without the earlier effect is as good on held-out blocks.
+    A lag can stand in for a delay, slow creep for a drift: when the model without the earlier
+    effect is as good on held-out blocks, that effect is dropped.
     """
     pruned = []
-    start = _effects.initial_params()
-    changed = len(named) > 1
-    while changed and len(named) > 1:
-        changed = False
-        mse = float(np.mean((pred[held] - y[held]) ** 2))
-        for e in list(named):
-            rest = [x for x in named if x != e]
-            th0 = theta.copy()
-            th0[_effects._sl(e)] = start[_effects._sl(e)]
-            th_r, pred_r = run_fit(th0, rest)
-            loss = float(np.mean((pred_r[held] - y[held]) ** 2)) - mse
-            bonus = PARAM_PENALTY * sigma2 * _effects.n_effect_params(e) / n_held
-            if loss - bonus < MIN_GAIN_NOISE * sigma2 or loss < MIN_GAIN_REL * mse:
-                named, theta, pred, changed = rest, th_r, pred_r, True
+    while len(named) > 1:
+        cur = _cv(p, cfg)
+        for e in named:
+            rest = {k: v for k, v in cfg.items() if k != e}
+            loss = _cv(p, rest) - cur
+            if not _significant(loss, _pj.N_PARAMS[e], cur, sigma2, len(p.y))[1]:
+                cfg, named = rest, [x for x in named if x != e]
                 pruned.append(e)
                 break
-    return named, theta, pred, pruned
+        else:
+            break
+    return cfg, named, pruned
 
 
-def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.EFFECTS, refit: bool = True):
+def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, refit: bool = True):
     """Run the naming loop on one identification record.
 
     **Arguments:**
@@ -265,119 +250,104 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=_effects.E
     - `rec`: the record (checked with `check_record`).
     - `max_effects`: stop after naming this many.
     - `candidates`: the effects to consider.
-    - `refit`: refit the base and final models on every sample (fitting and held-out blocks)
-      once the effects are chosen; without it the search's fits are returned.
+    - `refit`: fit the final weights on the full-rate record (otherwise on the search's samples).
 
-    **Returns:** a dict with `effects` (named, in order), `rounds` (each candidate's held-out RMSE,
-    gain and t statistic per round), `theta_base`, `theta_final`, `groups`, `scaling`, the noise
-    estimate and held-out RMSEs (normalised units are converted back to the data's units).
+    **Returns:** a dict with `effects` (named, in order), `pruned`, `rounds` (each candidate's
+    held-out RMSE and score per round), `model_base` and `model_final` (configuration and
+    weights), `scaling`, `noise_std` and the held-out RMSEs (in the data's units).
     """
-    import jax.numpy as jnp
-
     candidates = list(candidates)
     for c in candidates:
-        _effects.n_effect_params(c)
+        if c not in EFFECTS:
+            raise ValueError(f"unknown effect {c!r}; choose from {EFFECTS}")
     check_record(rec)
     sc = scaling_of(rec)
-    step = int(np.ceil(rec.n_samples / SEARCH_SAMPLES))
-    n = len(rec.u[::step])
-    length = _bucket(n)
-    blocks = _blocks(n)
-    held = blocks % 2 == 1
-    data = model_data(rec, sc, step=step, length=length, fit_w=(~held).astype(float))
-    y = np.asarray(data.y)[:n]
+    step = int(math.ceil(rec.n_samples / SEARCH_SAMPLES))
+    p = prepared(rec, sc, step=step, folds=True)
+    n = len(p.y)
     sigma = noise_std(rec.y) / sc.y_half
     sigma2 = max(sigma**2, 1e-12)
-
-    def run_fit(theta0, names):
-        g = jnp.asarray(_effects.group_mask(names))
-        res = _effects.fit(jnp.asarray(theta0), g, data)
-        pred = np.asarray(_effects.predict_jit(res.theta, g, data))[:n]
-        return np.asarray(res.theta), pred
-
-    theta, pred = run_fit(_base_start(data, n), [])
-    theta_base, pred_base = theta, pred
-    named, rounds = [], []
-    n_held = int(held.sum())
-    start = _effects.initial_params()
+    cfg, named, rounds = {}, [], []
+    base_mse = cur = _cv(p, cfg)
     while len(named) < max_effects:
-        cur_mse = float(np.mean((pred[held] - y[held]) ** 2))
         scores = {}
         for c in candidates:
             if c in named:
                 continue
-            sl = _effects._sl(c)
-            best_fit = None
-            starts = []
-            for extra in _EXTRA_STARTS.get(c, [None]):
-                th0 = theta.copy()
-                th0[sl] = start[sl] if extra is None else extra
-                starts.append(th0)
-            if c == "delay":
-                starts = _delay_starts(theta, [*named, c], data, y, ~held, n)
-            for th0 in starts:
-                th_c, pred_c = run_fit(th0, [*named, c])
-                sse = float(np.sum(((pred_c - y) ** 2)[~held]))
-                if best_fit is None or sse < best_fit[0]:
-                    best_fit = (sse, th_c, pred_c)
-            _, th_c, pred_c = best_fit
-            gain, t = _score(pred, pred_c, y, held, blocks)
-            penal = gain - PARAM_PENALTY * sigma2 * _effects.n_effect_params(c) / n_held
-            scores[c] = dict(
-                heldout_rmse=float(np.sqrt(np.mean((pred_c[held] - y[held]) ** 2))) * sc.y_half,
-                gain=gain, score=penal / sigma2, t=t, theta=th_c, pred=pred_c,
-            )
+            mse, q = _fit_many(p, cfg, c, _pj.grid(c, p))
+            score, ok = _significant(cur - mse, _pj.N_PARAMS[c], cur, sigma2, n)
+            scores[c] = dict(heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score),
+                             significant=ok, value=q, mse=mse)
         if not scores:
             break
         best = max(scores, key=lambda k: scores[k]["score"])
-        b = scores[best]
-        ok = b["score"] > MIN_GAIN_NOISE and b["gain"] > MIN_GAIN_REL * cur_mse
-        rounds.append(
-            dict(
-                current_heldout_rmse=float(np.sqrt(cur_mse)) * sc.y_half,
-                candidates={k: {kk: v[kk] for kk in ("heldout_rmse", "score", "t")} for k, v in scores.items()},
-                best=best, named=bool(ok),
-            )
-        )
+        ok = scores[best]["significant"]
+        rounds.append(dict(
+            current_heldout_rmse=float(np.sqrt(cur)) * sc.y_half,
+            candidates={k: {kk: v[kk] for kk in ("heldout_rmse", "score", "significant")}
+                        for k, v in scores.items()},
+            best=best, named=ok, parameters=_describe(best, scores[best]["value"]),
+        ))
         if not ok:
             break
         named.append(best)
-        theta, pred = b["theta"], b["pred"]
-    named, theta, pred, pruned = _prune(named, theta, pred, run_fit, y, held, sigma2, n_held)
-    # Final fits on every sample, warm-started from the search.
-    data_all = model_data(rec, sc, step=step, length=length)
-    g_b, g_f = (jnp.asarray(_effects.group_mask(x)) for x in ([], named))
-    theta_final = theta
-    if refit:
-        theta_base = np.asarray(_effects.fit(jnp.asarray(theta_base), g_b, data_all).theta)
-        theta_final = np.asarray(_effects.fit(jnp.asarray(theta), g_f, data_all).theta)
+        cfg = {**cfg, best: scores[best]["value"]}
+        cur = scores[best]["mse"]
+        if len(named) > 1:
+            cfg, named, cur = _revisit(p, cfg, named, candidates, cur)
+            rounds[-1]["effects_after_revisit"] = list(named)
+    cfg, named, pruned = _prune(p, cfg, named, sigma2)
+    cfg = {k: cfg[k] for k in named}
+    final_mse = _cv(p, cfg)
+    full = prepared(rec, sc) if refit else p
+    models = {}
+    for label, c in (("model_base", {}), ("model_final", cfg)):
+        f = _pj.fit(full, c)
+        models[label] = dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm)
     return dict(
-        effects=named, pruned=pruned, rounds=rounds, theta_base=theta_base, theta_final=theta_final,
-        scaling=sc, noise_std=sigma * sc.y_half, step=step,
-        heldout_rmse_base=float(np.sqrt(np.mean((pred_base[held] - y[held]) ** 2))) * sc.y_half,
-        heldout_rmse_final=float(np.sqrt(np.mean((pred[held] - y[held]) ** 2))) * sc.y_half,
+        effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=sigma * sc.y_half,
+        step=step, heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
+        heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half, **models,
     )
 
 
-def evaluate(rec: Record, sc: Scaling, theta, names, *, transferable_only=False):
+def _describe(effect, q):
+    """The chosen grid parameters of an effect in words (JSON-ready)."""
+    if effect == "delay":
+        return {"delay_s": float(q)}
+    if effect == "linear_dynamics":
+        if q[0] == "first":
+            return {"order": 1, "tau_s": float(q[1])}
+        return {"order": 2, "omega_rad_s": float(q[1]), "zeta": float(q[2])}
+    if effect == "rate_dependence":
+        return {"form": "r (1 + k rho^p)" if q[0] == "scale" else "r + k rho^p", "k": q[1], "p": q[2]}
+    if effect == "initial_state":
+        return {"history_turning_points": [float(a) for a in q]}
+    if effect == "asymmetry":
+        return {"input_envelope_b": float(q)}
+    if effect == "creep":
+        return {"time_constants_s": [float(v) for v in q]}
+    return {}
+
+
+def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False):
     """Run a fitted model on a record at full rate; returns (prediction in data units, RMSE).
 
     **Arguments:**
 
     - `rec`: the record; `sc`: the identification record's `Scaling`.
-    - `theta`, `names`: the fitted parameters and the effects switched on.
-    - `transferable_only`: for another record, switch off the effects tied to the identification
-      record itself (its initial states and its drift over time).
+    - `model`: `search(...)["model_base"]` or `["model_final"]`.
+    - `transferable_only`: for another record, switch off what is tied to the identification
+      record itself (its plays' initial states and its drift over time).
 
     **Returns:** `(prediction, rmse)`.
     """
-    import jax.numpy as jnp
-
+    cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
     if transferable_only:
-        names = [e for e in names if e not in ("initial_state", "offset_drift")]
-    data = model_data(rec, sc, length=_bucket(rec.n_samples))
-    g = jnp.asarray(_effects.group_mask(names))
-    pred = np.asarray(_effects.predict_jit(jnp.asarray(theta), g, data))[: rec.n_samples]
+        cfg.pop("initial_state", None)
+        if cfg.pop("offset_drift", None) is not None:
+            w = w[: len(w) - _pj.N_DRIFT]
+    pred = _pj.predict(prepared(rec, sc), cfg, w, np.asarray(model["coef_v"]), model["norm"])
     pred = pred * sc.y_half + sc.y_mid
     return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
 
@@ -397,8 +367,8 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
     """
     s = search(rec, **kwargs)
     sc, named = s["scaling"], s["effects"]
-    pred_b, rmse_b = evaluate(rec, sc, s["theta_base"], [])
-    pred_f, rmse_f = evaluate(rec, sc, s["theta_final"], named)
+    pred_b, rmse_b = evaluate(rec, sc, s["model_base"])
+    pred_f, rmse_f = evaluate(rec, sc, s["model_final"])
     first = s["rounds"][0]["candidates"] if s["rounds"] else {}
     out = dict(
         effects=named,
@@ -406,6 +376,7 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
         final_rmse=rmse_f,
         noise_std_estimate=s["noise_std"],
         candidates={k: dict(v) for k, v in first.items()},
+        parameters={r["best"]: r["parameters"] for r in s["rounds"] if r["best"] in named},
         rounds=s["rounds"],
         pruned=s["pruned"],
         heldout=dict(baseline_rmse=s["heldout_rmse_base"], final_rmse=s["heldout_rmse_final"]),
@@ -416,8 +387,8 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
     arrays = dict(t=rec.t, u=rec.u, y=rec.y, base=pred_b, final=pred_f)
     if validation is not None:
         check_record(validation)
-        vb, rb = evaluate(validation, sc, s["theta_base"], [], transferable_only=True)
-        vf, rf = evaluate(validation, sc, s["theta_final"], named, transferable_only=True)
+        vb, rb = evaluate(validation, sc, s["model_base"], transferable_only=True)
+        vf, rf = evaluate(validation, sc, s["model_final"], transferable_only=True)
         out["validation"] = dict(
             baseline_rmse=rb, final_rmse=rf, noise_std_estimate=noise_std(validation.y),
             effects_used=[e for e in named if e not in ("initial_state", "offset_drift")],

@@ -1,35 +1,34 @@
-"""The base PI model and the seven effects it can be augmented with, as one parameterised model.
+"""The PI model and the seven effects it can be augmented with, as regressors.
 
-All effects live in one model whose parameter groups are switched on or off by a 0/1 mask that is a
-traced argument. Every candidate (the base model, one effect, two effects, ...) therefore shares a
-single compiled residual and a single compiled Levenberg-Marquardt solve per record length; a switched-
-off group is held at its neutral value and its Jacobian columns are zero.
+Every model the diagnosis compares is y = X(q) w: the columns X are play outputs on a fixed, dense
+threshold grid (plus an offset column), transformed by the effects switched on, and q holds the
+effects' few nonlinear parameters (a delay, a time constant, a rate exponent, ...). For fixed q the
+weights w are a linear least-squares solution (variable projection), so every candidate is fitted
+exactly and fast, and q is chosen on a grid by the error on held-out blocks, which avoids the local
+minima a gradient search meets in delays and dynamics. In normalised units (input and output
+scaled to [-1, 1]) the model is
 
-The model, in normalised units (input and output scaled to about [-1, 1]):
+    g      = u + b u^2                                         (asymmetry: input envelope)
+    r_j(t) = r_j (1 + beta rho^p)  or  r_j + gamma rho^p       (rate_dependence, rho = |du/dt|)
+    X      = [plays_r(g) from states x0, 1]                    (initial_state: x0 left by a history)
+    X      <- X(t - d)                                         (delay, fractional)
+    X      <- H(s) X, H = 1/(tau s + 1) or w^2/(s^2 + 2 zeta w s + w^2)   (linear_dynamics)
+    y      = X w + [v^2 .. v^5] a                              (asymmetry: output polynomial)
+             + [lowpass_tau_k(v) - v] c                        (creep, slow modes)
+             + [cos(k pi s)] d                                 (offset_drift, s = t / duration)
 
-    g_t   = u_t + b2 u_t^2 + b3 u_t^3                         (asymmetry: input envelope)
-    r_j(t)= max(r_j (1 + beta rho_t^p) + gamma rho_t^p, 0)    (rate_dependence; rho = |du/dt| scaled)
-    x_t   = clamp(x_{t-1}, g_t - r_j(t), g_t + r_j(t)),  x_{-1} = g_0 + dx0   (initial_state)
-    v_t   = sum_j w_j x_{t,j}
-    v'_t  = v(t - d)                                          (delay, fractional, linear interpolation)
-    z     = H(s) v',  H = omega^2 / (s^2 + 2 zeta omega s + omega^2)   (linear_dynamics, unit DC gain)
-    y_t   = z_t + a2 z_t^2 + a3 z_t^3                         (asymmetry: output nonlinearity)
-            + sum_k c_k lowpass_{tau_k}(z)_t                  (creep, slow first-order modes)
-            + offset + sum_k d_k cos(k pi s_t)                (offset_drift, s = time / duration)
-
-Thresholds satisfy 0 = r_1 < r_2 < ... by construction (softplus increments). Time constants and the
-delay are physical (seconds), so a model fitted on a sub-sampled record runs unchanged at full rate.
+with v = X w the hysteresis output (the output-side terms are refreshed from v twice). Time
+constants and the delay are physical (seconds), so a model chosen on a sub-sampled record runs
+unchanged at the full rate.
 """
 
 import functools
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
-from jax import lax
-from jaxtyping import Array
+from scipy import linalg as _linalg
+from scipy import optimize as _optimize
+from scipy import signal as _signal
 
 EFFECTS = (
     "initial_state",
@@ -40,218 +39,367 @@ EFFECTS = (
     "asymmetry",
     "offset_drift",
 )
-N_PLAYS = 8
-_GROUP_SIZES = {
-    "base": 2 * N_PLAYS,  # n - 1 threshold increments, n weights, one offset
-    "initial_state": N_PLAYS,
+N_PLAYS = 16
+THRESHOLDS = np.arange(N_PLAYS) / N_PLAYS
+N_CREEP = 5  # creep modes, log-spaced from a third of the input's period to the record's length
+N_DRIFT = 6
+N_POLY = 4  # output polynomial terms v^2 .. v^5
+RIDGE = 1e-6
+# Parameters each effect adds: its linear coefficients plus its grid parameters.
+N_PARAMS = {
+    "initial_state": 2,
     "delay": 1,
     "linear_dynamics": 2,
-    "rate_dependence": 3,
-    "creep": 5,
-    "asymmetry": 4,
-    "offset_drift": 4,
+    "rate_dependence": 2,
+    "creep": N_CREEP,
+    "asymmetry": N_POLY + 1,
+    "offset_drift": N_DRIFT,
 }
-_ORDER = ("base", *EFFECTS)
-# Creep modes: log-spaced time constants in units of the input's dominant period, times one fitted
-# scale >= 1, so that exponential and logarithmic creep laws are both sums of these modes. Creep is
-# slow by definition: no mode is faster than half a period, which keeps it apart from the
-# actuator and sensor dynamics (fast, `linear_dynamics`).
-CREEP_TAUS = (0.5, 2.0, 8.0, 32.0)
-_STARTS = dict(zip(_ORDER, np.cumsum([0] + [_GROUP_SIZES[k] for k in _ORDER])[:-1].tolist()))
-N_PARAMS = sum(_GROUP_SIZES.values())
-# A weak pull of every effect parameter towards its starting value keeps the normal equations
-# regular when an effect is switched off or not excited; it is far below any data term.
-_RIDGE = 1e-4
-_RHO_EPS = 1e-3
 
 
-def n_effect_params(name: str) -> int:
-    """The number of parameters an effect adds to the base PI model.
+def plays(g, r, x0):
+    """Play outputs for several initial states at once.
 
-    **Arguments:** `name`, one of `EFFECTS`.
+    **Arguments:** `g` (T,), the (transformed) input; `r`, thresholds (n,) or time-varying (T, n);
+    `x0` (C, n), C sets of initial states.
 
-    **Returns:** the count.
+    **Returns:** (C, T, n).
     """
-    if name not in EFFECTS:
-        raise ValueError(f"unknown effect {name!r}; choose from {EFFECTS}")
-    return _GROUP_SIZES[name]
+    g = np.asarray(g, float)
+    x = np.array(x0, float)
+    rr = np.broadcast_to(np.asarray(r, float), (len(g), x.shape[-1]))
+    lo, hi = g[:, None] - rr, g[:, None] + rr
+    out = np.empty((len(g), x.shape[0], x.shape[1]))
+    for i in range(len(g)):
+        np.maximum(x, lo[i], out=x)
+        np.minimum(x, hi[i], out=x)
+        out[i] = x
+    return out.transpose(1, 0, 2)
 
 
-def _sl(name):
-    return slice(_STARTS[name], _STARTS[name] + _GROUP_SIZES[name])
+def history_states(u0, turns):
+    """Play states left by an input history u0 -> turns[0] -> turns[1] ... -> u0, from rest at u0.
 
+    **Arguments:** `u0`, the first input sample; `turns`, the turning points (normalised units).
 
-def _softplus_inv(x):
-    return np.log(np.expm1(x))
-
-
-class ModelData(NamedTuple):
-    """One record prepared for the model; every field is an array so records share compilations.
-
-    `u`, `y`, `rho`, `s`, `fit_w` are (T,); `dt` is this record's sampling step, `delay_unit` the
-    unit of the delay parameter (the full-rate step), `omega_ref` the natural frequency the dynamics
-    start from, `period` the input's dominant period (the unit of the creep time constants).
+    **Returns:** the states (n,) on the threshold grid.
     """
-
-    u: Array
-    y: Array
-    rho: Array
-    s: Array
-    fit_w: Array
-    dt: Array
-    delay_unit: Array
-    omega_ref: Array
-    period: Array
+    x = np.full(N_PLAYS, float(u0))
+    for a in [*turns, u0]:
+        x = np.clip(x, a - THRESHOLDS, a + THRESHOLDS)
+    return x
 
 
-def group_mask(names) -> np.ndarray:
-    """A 0/1 vector over `EFFECTS` with ones for `names` (the effects switched on).
+def delayed(X, d):
+    """Columns of X delayed by d samples (fractional, linear interpolation; the start is held)."""
+    if d <= 0:
+        return X
+    k, f = int(np.floor(d)), d - np.floor(d)
+    idx = np.arange(len(X))
+    a = X[np.clip(idx - k, 0, None)]
+    b = X[np.clip(idx - k - 1, 0, None)]
+    return (1 - f) * a + f * b
 
-    **Arguments:** `names`, an iterable of effect names.
 
-    **Returns:** float array (7,).
+@functools.lru_cache(maxsize=4096)
+def _discrete(spec, dt):
+    """(b, a) of the filter discretised exactly for inputs linear between samples."""
+    if spec[0] == "first":
+        a = np.exp(-dt / spec[1])
+        c = 1 - spec[1] * (1 - a) / dt
+        return np.array([c, 1 - a - c]), np.array([1.0, -a])
+    w, z = spec[1], spec[2]
+    b, a, _ = _signal.cont2discrete(([w * w], [1.0, 2 * z * w, w * w]), dt, method="foh")
+    return np.ravel(b), np.asarray(a)
+
+
+def dynamics(X, spec, dt):
+    """Columns of X through a unit-gain 1st or 2nd-order filter, starting at rest at X[0].
+
+    **Arguments:** `X` (T, p); `spec`, `("first", tau)` or `("second", omega, zeta)` in seconds;
+    `dt`, the sampling step.
+
+    **Returns:** (T, p). The filter is discretised exactly for inputs linear between samples (a
+    zero-order hold would add half a sample of lag, which would look like a delay).
     """
-    names = list(names)
-    for n in names:
-        n_effect_params(n)
-    return np.array([1.0 if e in names else 0.0 for e in EFFECTS])
+    b, a = _discrete(tuple(float(v) if not isinstance(v, str) else v for v in spec), float(dt))
+    zi = _signal.lfilter_zi(b, a)
+    return _signal.lfilter(b, a, X, axis=0, zi=zi[:, None] * X[:1])[0]
 
 
-def initial_params(u0_thresholds_scale: float = 1.0) -> np.ndarray:
-    """Starting parameters: uniform thresholds over [0, 0.9 scale), unit total weight, effects neutral.
-
-    **Arguments:** `u0_thresholds_scale`, half the normalised input range (1 for inputs in [-1, 1]).
-
-    **Returns:** the flat parameter vector (N_PARAMS,).
-    """
-    th = np.zeros(N_PARAMS)
-    n = N_PLAYS
-    base = np.concatenate(
-        [np.full(n - 1, _softplus_inv(0.9 * u0_thresholds_scale / n)), np.full(n, 1.0 / n), [0.0]]
+def lowpass(v, lam):
+    """First-order low-pass y_t = lam y_{t-1} + (1 - lam) v_t, starting at v_0; `lam` (k,) -> (T, k)."""
+    v = np.asarray(v, float)
+    return np.column_stack(
+        [_signal.lfilter([1 - a], [1.0, -a], v, zi=[a * v[0]])[0] for a in np.asarray(lam, float)]
     )
-    th[_sl("base")] = base
-    th[_sl("delay")] = _softplus_inv(1.0)
-    th[_sl("linear_dynamics")] = [0.0, _softplus_inv(0.7)]
-    th[_sl("creep")] = 0.0
-    return th
 
 
-def thresholds_of(theta) -> Array:
-    """The thresholds r (n,) encoded in a parameter vector (r_1 = 0, positive increments)."""
-    inc = jax.nn.softplus(theta[_sl("base")][: N_PLAYS - 1])
-    return jnp.concatenate([jnp.zeros(1, inc.dtype), jnp.cumsum(inc)])
+class Prepared:
+    """One record in normalised units, with the quantities every regressor needs."""
+
+    def __init__(self, u, y, t, rate_scale, period, folds=None):
+        self.u, self.y, self.t = (np.asarray(a, float) for a in (u, y, t))
+        self.dt = float(np.median(np.diff(self.t)))
+        self.s = (self.t - self.t[0]) / max(self.t[-1] - self.t[0], 1e-300)
+        self.rho = np.abs(np.gradient(self.u, self.t)) / rate_scale
+        self.period = period
+        self.folds = folds
+        self._plain = None
+
+    def plain_plays(self):
+        if self._plain is None:
+            self._plain = plays(self.u, THRESHOLDS, np.full((1, N_PLAYS), self.u[0]))[0]
+        return self._plain
 
 
-def weights_of(theta) -> Array:
-    """The play weights (n,) encoded in a parameter vector."""
-    return theta[_sl("base")][N_PLAYS - 1 : 2 * N_PLAYS - 1]
+def play_inputs(p: Prepared, cfg):
+    """The plays' input g (T,) and thresholds, (n,) or time-varying (T, n), for a configuration."""
+    g = p.u + (cfg.get("asymmetry") or 0.0) * p.u**2
+    rate = cfg.get("rate_dependence")
+    if rate is None:
+        return g, THRESHOLDS
+    form, k, e = rate
+    rp = p.rho[:, None] ** e
+    r = THRESHOLDS[None, :] * (1 + k * rp) if form == "scale" else THRESHOLDS[None, :] + k * rp
+    return g, r
 
 
-def _zoh2(omega, zeta, dt):
-    a = jnp.array([[0.0, 1.0], [-(omega**2), -2 * zeta * omega]], dtype=dt.dtype)
-    b = jnp.array([[0.0], [1.0]], dtype=dt.dtype) * omega**2
-    m = jnp.zeros((3, 3), dt.dtype).at[:2, :2].set(a).at[:2, 2:].set(b)
-    e = jax.scipy.linalg.expm(m * dt)
-    return e[:2, :2], e[:2, 2]
+def play_columns(p: Prepared, cfg):
+    """The play part of X (T, n) for a configuration (dict effect -> grid parameters)."""
+    rate, env, turns = cfg.get("rate_dependence"), cfg.get("asymmetry"), cfg.get("initial_state")
+    if rate is None and not env and turns is None:
+        return p.plain_plays()
+    g, r = play_inputs(p, cfg)
+    x0 = np.full(N_PLAYS, g[0]) if turns is None else history_states(g[0], turns)
+    return plays(g, r, x0[None])[0]
 
 
-def predict(theta: Array, groups: Array, data: ModelData) -> Array:
-    """The augmented model's normalised output for one record.
+def linear_part(p: Prepared, cfg, play_cols=None):
+    """X before the output-side terms: plays and offset, then delay and dynamics."""
+    H = play_columns(p, cfg) if play_cols is None else play_cols
+    X = np.column_stack([H, np.ones(len(H))])
+    if cfg.get("delay") is not None:
+        X = delayed(X, cfg["delay"] / p.dt)
+    if cfg.get("linear_dynamics") is not None:
+        X = dynamics(X, cfg["linear_dynamics"], p.dt)
+    return X
 
-    **Arguments:**
 
-    - `theta`: the flat parameter vector (N_PARAMS,).
-    - `groups`: the 0/1 effect mask (7,), in the order of `EFFECTS`.
-    - `data`: the record, a `ModelData`.
+def _poly(v, norm):
+    """Output polynomial columns [vc^2 .. vc^(N_POLY+1)] and their derivatives in v."""
+    vc = (v - norm[0]) / norm[1]
+    pw = [np.ones_like(vc), vc]
+    for _ in range(N_POLY):
+        pw.append(pw[-1] * vc)
+    cols = np.column_stack(pw[2:])
+    der = np.column_stack([k * pw[k - 1] for k in range(2, 2 + N_POLY)]) / norm[1]
+    return cols, der
 
-    **Returns:** the model output (T,).
+
+def output_terms(p: Prepared, cfg, v, norm):
+    """The columns driven by the hysteresis output v (asymmetry, creep) and by time (drift).
+
+    `norm` = (centre, half-range) scales v for the output polynomial; it is fixed by the fit on
+    the identification record, so that a validation record sees the same polynomial.
     """
-    m_init, m_delay, m_dyn, m_rate, m_creep, m_asym, m_drift = (groups[i] for i in range(7))
-    u, rho = data.u, data.rho
-    b2, b3, a2, a3 = theta[_sl("asymmetry")]
-    g = u + m_asym * (b2 * u**2 + b3 * u**3)
-    r = thresholds_of(theta)
-    beta, gamma, lp = theta[_sl("rate_dependence")]
-    # rho^p with a fitted exponent (p = 1 at the start); the small shift keeps d/dp finite at rho = 0.
-    rp = (jnp.exp(jnp.exp(lp) * jnp.log(rho + _RHO_EPS)) - jnp.exp(jnp.exp(lp) * jnp.log(_RHO_EPS)))[:, None]
-    rt = jnp.maximum(r[None, :] * (1 + m_rate * beta * rp) + m_rate * gamma * rp, 0.0)
-    x0 = g[0] + m_init * theta[_sl("initial_state")]
-
-    def play_step(x, inp):
-        gt, rtt = inp
-        x = jnp.maximum(gt - rtt, jnp.minimum(gt + rtt, x))
-        return x, x
-
-    _, xs = lax.scan(play_step, x0, (g, rt))
-    v = xs @ weights_of(theta)
-
-    d = m_delay * jax.nn.softplus(theta[_sl("delay")][0]) * data.delay_unit / data.dt
-    idx = jnp.arange(v.shape[0], dtype=v.dtype)
-    v = jnp.interp(idx - d, idx, v)
-
-    lw, zr = theta[_sl("linear_dynamics")]
-    ad, bd = _zoh2(data.omega_ref * jnp.exp(lw), jax.nn.softplus(zr), data.dt)
-    cp = theta[_sl("creep")]
-    taus = data.period * (1 + jax.nn.softplus(cp[4])) * jnp.asarray(CREEP_TAUS, dtype=v.dtype)
-    lam = jnp.exp(-data.dt / taus)
-
-    def filt_step(carry, vt):
-        s, c, vprev = carry
-        # The input averaged over the step (a first-order hold) keeps the filter free of the
-        # half-sample lag a zero-order hold would add, which would look like a delay.
-        s = ad @ s + bd * 0.5 * (vt + vprev)
-        z = m_dyn * s[0] + (1 - m_dyn) * vt
-        c = lam * c + (1 - lam) * z
-        return (s, c, vt), (z, c)
-
-    init = (jnp.stack([v[0], jnp.zeros_like(v[0])]), jnp.full(len(CREEP_TAUS), v[0]), v[0])
-    _, (z, cs) = lax.scan(filt_step, init, v)
-    y = z + m_asym * (a2 * z**2 + a3 * z**3)
-    y = y + m_creep * (cs @ cp[:4])
-    k = jnp.arange(1, 5, dtype=v.dtype)
-    drift = jnp.cos(jnp.pi * data.s[:, None] * k[None, :]) @ theta[_sl("offset_drift")]
-    return y + theta[_STARTS["base"] + 2 * N_PLAYS - 1] + m_drift * drift
+    cols = []
+    if "asymmetry" in cfg:
+        cols += list(_poly(v, norm)[0].T)
+    if "creep" in cfg:
+        taus = np.asarray(cfg["creep"])
+        lp = lowpass(v, np.exp(-p.dt / taus))
+        cols += list((lp - v[:, None]).T)
+    if "offset_drift" in cfg:
+        cols += [np.cos(k * np.pi * p.s) for k in range(1, N_DRIFT + 1)]
+    return np.column_stack(cols) if cols else np.zeros((len(v), 0))
 
 
-def _residual(theta, args):
-    groups, data, theta_ref = args
-    res = data.fit_w * (predict(theta, groups, data) - data.y)
-    start = _STARTS["initial_state"]
-    return jnp.concatenate([res, _RIDGE * (theta[start:] - theta_ref[start:])])
+def positive_mask(cfg, n_cols):
+    """Which columns have a coefficient >= 0: the plays' weights and the creep modes.
 
-
-class FitResult(NamedTuple):
-    """A fit's parameters, whether the solver reported success, and its step count."""
-
-    theta: Array
-    success: Array
-    steps: Array
-
-
-@functools.partial(jax.jit, static_argnames="max_steps")
-def fit(theta0: Array, groups: Array, data: ModelData, *, max_steps: int = 60) -> FitResult:
-    """Fit the model with the effects in `groups` switched on, by Levenberg-Marquardt (optimistix).
-
-    Samples with `data.fit_w == 0` (held-out blocks, padding) do not enter the fit but the model
-    still runs through them, so states carry across. Compiled once per record length.
-
-    **Arguments:**
-
-    - `theta0`: starting parameters (N_PARAMS,), e.g. the current model's fit with a new effect's
-      parameters at their neutral start.
-    - `groups`: the 0/1 effect mask (7,).
-    - `data`: a `ModelData`.
-    - `max_steps`: the solver's step budget.
-
-    **Returns:** a `FitResult`; `success` is False when the solver stopped without converging (the
-    parameters are still its best point).
+    Positive play weights are the physical PI model (every cumulative weight positive, hence an
+    invertible operator). A creep mode's column is lowpass(v) - v, the output lagging the
+    hysteresis output: a positive coefficient is an output that keeps moving after a change, in
+    the direction of the change, which is what creep is.
     """
-    solver = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-7)
-    sol = optx.least_squares(
-        _residual, solver, theta0, args=(groups, data, theta0), max_steps=max_steps, throw=False
-    )
-    theta = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, theta0)
-    return FitResult(theta, sol.result == optx.RESULTS.successful, sol.stats["num_steps"])
+    pos = np.zeros(n_cols, bool)
+    pos[:N_PLAYS] = True
+    if "creep" in cfg and n_cols > N_PLAYS + 1:
+        start = N_PLAYS + 1 + (N_POLY if "asymmetry" in cfg else 0)
+        pos[start : start + len(cfg["creep"])] = True
+    return pos
 
 
-predict_jit = jax.jit(predict)
+def _solve(G, b, scale, pos):
+    """Least squares from the normal equations with the coefficients in `pos` kept >= 0.
+
+    The sign constraints also keep the fit from trading large opposite weights between columns
+    that are nearly equal on the fitted samples (a play the input barely moves and the offset),
+    which held-out blocks would expose. The weak ridge makes the Cholesky factor exist when
+    columns coincide. The constrained problem is solved on the factor: min |R w - d|, with
+    R^T R = G and R^T d = b, in column-normalised units.
+    """
+    n = G.shape[0]
+    Gs = G / np.outer(scale, scale)
+    Gs = Gs + RIDGE * max(np.trace(Gs) / n, 1e-300) * np.eye(n)
+    L = np.linalg.cholesky(Gs)
+    d = _linalg.solve_triangular(L, b / scale, lower=True, check_finite=False)
+    R = L.T
+    free = ~pos
+    z = _optimize.nnls(np.concatenate([R[:, pos], R[:, free], -R[:, free]], axis=1), d, maxiter=50 * n)[0]
+    w = np.empty(n)
+    k, f = int(pos.sum()), int(free.sum())
+    w[pos] = z[:k]
+    w[free] = z[k : k + f] - z[k + f :]
+    return w / scale
+
+
+def _scale(A):
+    s = np.sqrt(np.mean(A * A, axis=0))
+    return np.where(s > 1e-150, s, 1.0)
+
+
+def _lstsq(A, y, pos=None):
+    pos = positive_mask({}, A.shape[1]) if pos is None else pos
+    return _solve(A.T @ A, A.T @ y, _scale(A), pos)
+
+
+class Fit(NamedTuple):
+    """A fitted configuration.
+
+    `A` (T, q) is the design at the solution and `target` (T,) what `A @ w` fits: the data,
+    plus, with an output polynomial, the offset of its linearisation (Gauss-Newton). `w_v` are
+    the weights of the linear part that built the creep columns and the linearisation, `norm`
+    the (centre, half-range) of the hysteresis output that scales the polynomial.
+    """
+
+    A: np.ndarray
+    target: np.ndarray
+    w: np.ndarray
+    w_v: np.ndarray
+    norm: tuple
+
+
+def fit(p: Prepared, cfg, *, X=None) -> Fit:
+    """Fit the coefficients of one configuration by (sign-constrained) least squares.
+
+    The output-side columns depend on the hysteresis output v = X w. Creep columns are linear in
+    v and are rebuilt from the previous fit (a fixed-point iteration, creep being small). The
+    output polynomial y = v + P(v) a is bilinear in (w, a), where a fixed-point iteration stalls
+    short of the optimum for a strong nonlinearity, so it takes Gauss-Newton steps: around
+    (w0, a0), y + g v0 = diag(1 + g) X w + P(v0) a with g = P'(v0) a0, a least-squares problem.
+
+    **Arguments:** `p`; `cfg`; `X`, a precomputed `linear_part`.
+
+    **Returns:** a `Fit`.
+    """
+    X = linear_part(p, cfg) if X is None else X
+    px = X.shape[1]
+    w = w_v = _lstsq(X, p.y)
+    v = X @ w
+    norm = (0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-12))
+    A, target = X, p.y
+    if any(k in cfg for k in ("asymmetry", "creep", "offset_drift")):
+        asym = "asymmetry" in cfg
+        iters = 5 if asym else 2 if "creep" in cfg else 1
+        n_out = (N_POLY if asym else 0) + len(cfg.get("creep", ())) + ("offset_drift" in cfg) * N_DRIFT
+        pos = positive_mask(cfg, px + n_out)
+        for i in range(iters):
+            w_v = w[:px]
+            v0 = X @ w_v
+            T = output_terms(p, cfg, v0, norm)
+            Xs, target = X, p.y
+            if asym and i > 0:
+                g = _poly(v0, norm)[1] @ w[px : px + N_POLY]
+                Xs, target = (1 + g)[:, None] * X, p.y + g * v0
+            A = np.column_stack([Xs, T])
+            w = _lstsq(A, target, pos)
+    return Fit(A, target, w, w_v, norm)
+
+
+def predict(p: Prepared, cfg, w, w_v, norm):
+    """The output of a fitted configuration on a (possibly different) record, normalised units.
+
+    The model itself, y = v + P(v) a + creep(X w_v) c + drift d with v = X w, not its
+    linearisation.
+    """
+    X = linear_part(p, cfg)
+    px = X.shape[1]
+    v = X @ w[:px]
+    T = output_terms(p, cfg, X @ w_v, norm)
+    if "asymmetry" in cfg:
+        T[:, :N_POLY] = _poly(v, norm)[0]
+    return v + T @ w[px:]
+
+
+def cv_mse(p: Prepared, A, cfg=None, target=None):
+    """Mean squared error on held-out blocks: each fold is fitted on the others and predicted.
+
+    **Arguments:** `p` (with `folds`); `A` (T, q), the regressors; `cfg`, the configuration
+    that built them (for the sign constraints); `target`, what A fits (default `p.y`).
+
+    **Returns:** `(mse, errors)`, the errors (T,) each from the fit that did not see them.
+    """
+    y = p.y if target is None else target
+    scale = _scale(A)
+    pos = positive_mask(cfg or {}, A.shape[1])
+    parts = [(p.folds == k) for k in np.unique(p.folds)]
+    grams = [(A[m].T @ A[m], A[m].T @ y[m]) for m in parts]
+    G, b = sum(g for g, _ in grams), sum(v for _, v in grams)
+    err = np.empty(len(p.y))
+    for m, (Gk, bk) in zip(parts, grams):
+        err[m] = y[m] - A[m] @ _solve(G - Gk, b - bk, scale, pos)
+    return float(np.mean(err**2)), err
+
+
+def grid(effect, p: Prepared):
+    """The grid of nonlinear parameters for an effect (normalised input, physical time)."""
+    if effect == "initial_state":
+        u0 = p.u[0]
+        one = [(u0 + a,) for a in np.linspace(-2.5, 2.5, 41) if abs(a) > 1e-9]
+        lv = np.linspace(-2.5, 2.5, 11)
+        two = [(u0 + a, u0 + b) for a in lv for b in lv if a * b < 0 and abs(b) < abs(a)]
+        seen, out = set(), []
+        for turns in one + two:
+            key = tuple(np.round(history_states(u0, turns), 9))
+            if key not in seen and np.any(np.abs(np.array(key) - u0) > 1e-9):
+                seen.add(key)
+                out.append(turns)
+        return out
+    if effect == "delay":
+        top = max(64.0, 0.1 * p.period / p.dt)
+        return list(np.geomspace(0.25, top, 36) * p.dt)
+    if effect == "linear_dynamics":
+        taus = np.geomspace(0.3 * p.dt, 0.5 * p.period, 20)
+        first = [("first", tau) for tau in taus]
+        second = [("second", 1 / tau, z) for tau in taus[::2] for z in (0.2, 0.35, 0.5, 0.7, 1.0)]
+        return first + second
+    if effect == "rate_dependence":
+        return [("scale", k, e) for k in (0.1, 0.25, 0.5, 1.0, 2.0, 4.0) for e in (0.5, 1.0)] + [
+            ("add", k, e) for k in (0.01, 0.025, 0.05, 0.1, 0.2, 0.4) for e in (0.5, 1.0)
+        ]
+    if effect == "asymmetry":
+        return [0.0, -0.4, -0.2, 0.2, 0.4]
+    if effect == "creep":
+        duration = p.t[-1] - p.t[0]
+        return [tuple(np.geomspace(min(0.3 * p.period, duration / 10), duration, N_CREEP))]
+    return [True]
+
+
+def neighbours(effect, q, level):
+    """Values around a grid point, for a local refinement (finer with each `level`)."""
+    f = 2.0 ** (0.5 ** (level + 2))  # 1.19, 1.09, 1.04: below the grids' spacing
+    if effect == "delay":
+        return [q / f, q * f]
+    if effect == "linear_dynamics":
+        if q[0] == "first":
+            return [("first", q[1] / f), ("first", q[1] * f)]
+        return [("second", q[1] / f, q[2]), ("second", q[1] * f, q[2]),
+                ("second", q[1], q[2] / f), ("second", q[1], min(q[2] * f, 1.5))]
+    if effect == "rate_dependence":
+        return [(q[0], q[1] / f**2, q[2]), (q[0], q[1] * f**2, q[2])]
+    if effect == "asymmetry":
+        step = 0.1 * 0.5**level
+        return [q - step, q + step]
+    return []

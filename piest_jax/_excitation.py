@@ -193,7 +193,15 @@ def excited_plays(
 
 
 class IndependenceCheck(NamedTuple):
-    """The result of [`lemma1_check`][]."""
+    """The result of [`lemma1_check`][].
+
+    **Fields:**
+
+    - `rank`: the numerical rank of the window's regressor.
+    - `smallest_singular_value`: its smallest singular value σ_min.
+    - `tolerance`: the singular-value threshold below which a direction counts as missing.
+    - `independent`: whether `rank == n`, i.e. the play outputs are linearly independent.
+    """
 
     rank: Int[Array, ""]
     smallest_singular_value: Scalar

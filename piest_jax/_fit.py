@@ -200,7 +200,7 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
     return params
 
 
-def _prepare(u, y, n_plays, mask, thresholds0, initial_states):
+def _prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2):
     u = _checks.finite(_checks.signal(u, "u"), "u")
     y = _checks.finite(_checks.signal(y, "y"), "y")
     if u.shape != y.shape:
@@ -213,10 +213,10 @@ def _prepare(u, y, n_plays, mask, thresholds0, initial_states):
     if mask.shape != u.shape:
         raise ValueError(f"`mask` has shape {mask.shape}, expected {u.shape}")
     n_fit = int(np.sum(np.asarray(mask) > 0))
-    if 2 * n_plays + 1 > n_fit:
+    if per_play * n_plays + 1 > n_fit:
         raise ValueError(
-            f"{n_plays} plays need {2 * n_plays + 1} parameters but only {n_fit} samples are "
-            "fitted; use fewer plays or a longer record"
+            f"{n_plays} plays need {per_play * n_plays + 1} parameters but only {n_fit} samples "
+            "are fitted; use fewer plays or a longer record"
         )
     un, yn = np.asarray(u), np.asarray(y)
     u_lo, u_hi = float(un.min()), float(un.max())
@@ -309,7 +309,9 @@ def fit_pi(
         raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
     if n_starts < 1:
         raise ValueError(f"`n_starts` must be at least 1, got {n_starts}")
-    un, yn, mask, s, x0, r_start = _prepare(u, y, n_plays, mask, thresholds0, initial_states)
+    un, yn, mask, s, x0, r_start = _prepare(
+        u, y, n_plays, mask, thresholds0, initial_states, 3 if fit_initial_states else 2
+    )
     if r_start is None:
         r0s = _grid(n_plays, n_starts, un.dtype, key)
     else:

@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from ._data import Record
-from ._effects import EFFECTS
+from ._effects import EFFECTS, N_PLAYS, THRESHOLDS, _lstsq, plays
 
 
 def _rng(key):
@@ -105,89 +105,108 @@ def generate(effects=(), *, key, n_samples=2000, noise=None):
     form = truth["forms"]
     span0 = np.ptp(_pi(u, r, w, x0))
 
-    rt = None
-    if "initial_state" in effects:
-        # Memory of an earlier excursion beyond what this record reaches first.
-        pre = np.concatenate([np.linspace(0, s * amp * rng.uniform(0.9, 1.3), 50) for s in (rng.choice([-1, 1]),)])
-        pre = np.concatenate([pre, np.linspace(pre[-1], 0, 50)])
-        x0 = _pi_states(pre, r)
-        form["initial_state"] = "states left by an earlier excursion"
-    uu = u
-    if "delay" in effects:
-        d = rng.uniform(1.5, 8.0) * dt
-        uu = np.interp(t - d, t, u, left=u[0])
-        form["delay"] = f"input delayed by {d / dt:.2f} samples"
-    if "rate_dependence" in effects:
-        rate = np.abs(np.gradient(u, t))
-        rate = rate / np.percentile(rate, 95)
-        b = rng.uniform(0.5, 1.2)
-        if rng.random() < 0.5:
-            rt = r[None, :] * (1 + b * rate[:, None])
-            form["rate_dependence"] = "thresholds proportional to 1 + b|du/dt|"
-        else:
-            rt = r[None, :] + b * 0.15 * amp * np.sqrt(rate)[:, None]
-            form["rate_dependence"] = "thresholds grow with sqrt|du/dt|"
-    g = uu
-    asym_form = None
-    if "asymmetry" in effects:
-        asym_form = rng.choice(["saturation", "quadratic", "envelope", "exponential"])
-        form["asymmetry"] = str(asym_form)
-        if asym_form == "envelope":
-            c = rng.uniform(0.25, 0.5) * rng.choice([-1, 1])
-            g = uu + c * uu**2 / amp
-    v = _pi(g, r, w, x0, rt)
-    if "linear_dynamics" in effects:
-        wn = 2 * np.pi * f0 * rng.uniform(3, 8)
-        if rng.random() < 0.5:
-            v = _lowpass(v, np.exp(-dt * wn))
-            form["linear_dynamics"] = f"first order, tau = {1 / wn:.3g} s"
-        else:
-            zeta = rng.uniform(0.3, 0.9)
-            v = _second_order(v, wn, zeta, dt)
-            form["linear_dynamics"] = f"second order, wn = {wn:.3g} rad/s, zeta = {zeta:.2f}"
-    if asym_form is not None and asym_form != "envelope":
-        m = 0.5 * (v.max() + v.min())
-        h = 0.5 * np.ptp(v)
-        z = (v - m) / h
-        if asym_form == "saturation":
-            k = rng.uniform(0.8, 1.5)
-            z = np.tanh(k * z) / np.tanh(k)
-        elif asym_form == "quadratic":
-            z = z + rng.uniform(0.12, 0.25) * rng.choice([-1, 1]) * (z**2 - 0.5)
-        else:
-            k = rng.uniform(0.8, 1.4) * rng.choice([-1, 1])
-            z = np.expm1(k * z) / k
-        v = m + h * z
-    y = v.copy()
-    if "creep" in effects:
-        c = rng.uniform(0.08, 0.2)
-        if rng.random() < 0.5:
-            taus = t[-1] * np.array([rng.uniform(0.01, 0.04), rng.uniform(0.1, 0.4)])
-            y = y + c * sum(_lowpass(v, np.exp(-dt / tau)) - v for tau in taus) * 0.5
-            form["creep"] = "two slow exponential modes"
-        else:
-            # Logarithmic creep: every output change keeps growing as log(1 + t/t0).
-            t0 = rng.uniform(0.2, 1.0) / max(f0, 1e-9) / 10
-            kern = np.log1p(np.arange(len(t)) * dt / t0)
-            kern = kern / kern[-1]
-            dv = np.diff(v, prepend=v[0])
-            y = y + c * 1.5 * np.convolve(dv, kern)[: len(t)]
-            form["creep"] = "logarithmic, log(1 + t/t0)"
-    if "offset_drift" in effects:
-        d = rng.uniform(0.04, 0.1) * span0
-        kind = rng.choice(["ramp", "warm-up", "oscillation"])
-        s = t / t[-1]
-        shape = {"ramp": s, "warm-up": 1 - np.exp(-s / rng.uniform(0.1, 0.3)),
-                 "oscillation": np.sin(2 * np.pi * s * rng.uniform(0.5, 1.5) + rng.uniform(0, 6))}[kind]
-        y = y + d * shape * rng.choice([-1, 1])
-        form["offset_drift"] = str(kind)
+    effect_seed = int(rng.integers(2**31))
+
+    def simulate(active):
+        # The effects' parameters are drawn the same way whichever are active, so a pair's
+        # record and each of its single-effect parts share them.
+        prng = np.random.default_rng(effect_seed)
+        form.clear()
+        x0, rt, uu = np.zeros(n_true), None, u
+        if "initial_state" in effects:
+            # Memory of an earlier excursion beyond what this record reaches first.
+            top = prng.choice([-1, 1]) * amp * prng.uniform(0.9, 1.3)
+            pre = np.concatenate([np.linspace(0, top, 50), np.linspace(top, 0, 50)])
+            if "initial_state" in active:
+                x0 = _pi_states(pre, r)
+            form["initial_state"] = "states left by an earlier excursion"
+        if "delay" in effects:
+            d = prng.uniform(1.5, 8.0) * dt
+            if "delay" in active:
+                uu = np.interp(t - d, t, u, left=u[0])
+            form["delay"] = f"input delayed by {d / dt:.2f} samples"
+        if "rate_dependence" in effects:
+            rate = np.abs(np.gradient(u, t))
+            rate = rate / np.percentile(rate, 95)
+            b = prng.uniform(0.5, 1.2)
+            if prng.random() < 0.5:
+                rt_ = r[None, :] * (1 + b * rate[:, None])
+                form["rate_dependence"] = "thresholds proportional to 1 + b|du/dt|"
+            else:
+                rt_ = r[None, :] + b * 0.15 * amp * np.sqrt(rate)[:, None]
+                form["rate_dependence"] = "thresholds grow with sqrt|du/dt|"
+            if "rate_dependence" in active:
+                rt = rt_
+        g = uu
+        asym_form = None
+        if "asymmetry" in effects:
+            asym_form = str(prng.choice(["saturation", "quadratic", "envelope", "exponential"]))
+            form["asymmetry"] = asym_form
+            k_asym = prng.uniform(0.25, 0.5) * prng.choice([-1, 1])
+            if asym_form == "envelope" and "asymmetry" in active:
+                g = uu + k_asym * uu**2 / amp
+            if "asymmetry" not in active:
+                asym_form = None
+        v = _pi(g, r, w, x0, rt)
+        if "linear_dynamics" in effects:
+            wn = 2 * np.pi * f0 * prng.uniform(3, 8)
+            zeta = prng.uniform(0.3, 0.9)
+            if prng.random() < 0.5:
+                if "linear_dynamics" in active:
+                    v = _lowpass(v, np.exp(-dt * wn))
+                form["linear_dynamics"] = f"first order, tau = {1 / wn:.3g} s"
+            else:
+                if "linear_dynamics" in active:
+                    v = _second_order(v, wn, zeta, dt)
+                form["linear_dynamics"] = f"second order, wn = {wn:.3g} rad/s, zeta = {zeta:.2f}"
+        if asym_form is not None and asym_form != "envelope":
+            m = 0.5 * (v.max() + v.min())
+            h = 0.5 * np.ptp(v)
+            z = (v - m) / h
+            if asym_form == "saturation":
+                k = 0.8 + 1.4 * abs(k_asym)
+                z = np.tanh(k * z) / np.tanh(k)
+            elif asym_form == "quadratic":
+                z = z + 0.5 * k_asym * (z**2 - 0.5)
+            else:
+                k = (0.5 + 2 * abs(k_asym)) * np.sign(k_asym)
+                z = np.expm1(k * z) / k
+            v = m + h * z
+        y = v.copy()
+        if "creep" in effects:
+            c = prng.uniform(0.08, 0.2)
+            taus = t[-1] * np.array([prng.uniform(0.01, 0.04), prng.uniform(0.1, 0.4)])
+            t0 = prng.uniform(0.2, 1.0) / max(f0, 1e-9) / 10
+            if prng.random() < 0.5:
+                if "creep" in active:
+                    y = y + c * sum(_lowpass(v, np.exp(-dt / tau)) - v for tau in taus) * 0.5
+                form["creep"] = "two slow exponential modes"
+            else:
+                # Logarithmic creep: every output change keeps growing as log(1 + t/t0).
+                kern = np.log1p(np.arange(len(t)) * dt / t0)
+                kern = kern / kern[-1]
+                if "creep" in active:
+                    y = y + c * 1.5 * np.convolve(np.diff(v, prepend=v[0]), kern)[: len(t)]
+                form["creep"] = "logarithmic, log(1 + t/t0)"
+        if "offset_drift" in effects:
+            d = prng.uniform(0.04, 0.1) * span0
+            kind = str(prng.choice(["ramp", "warm-up", "oscillation"]))
+            s = t / t[-1]
+            shape = {"ramp": s, "warm-up": 1 - np.exp(-s / prng.uniform(0.1, 0.3)),
+                     "oscillation": np.sin(2 * np.pi * s * prng.uniform(0.5, 1.5) + prng.uniform(0, 6))}[kind]
+            if "offset_drift" in active:
+                y = y + d * shape * prng.choice([-1, 1])
+            form["offset_drift"] = kind
+        return y
+
+    y = simulate(effects)
     span = np.ptp(y)
     sig = span * (rng.uniform(0.003, 0.01) if noise is None else noise)
     if effects and noise is None:
-        # A hidden effect is one the data can show: its footprint (less any constant offset, which
-        # the plain model absorbs) is kept at 2-5x the noise, with the noise at least 0.1 % of span.
-        diff = y - _pi(u, r, w, np.zeros(n_true))
-        foot = np.sqrt(np.mean((diff - diff.mean()) ** 2))
+        # A hidden effect is one the data can show: its footprint, what a plain PI fit to the
+        # noise-free output leaves, is kept at 2-5x the noise (the noise at least 0.1 % of span).
+        # With two effects, each one's own footprint counts, so that neither is invisible.
+        foot = min(_plain_pi_misfit(u, simulate((e,))) for e in effects) if len(effects) > 1 else _plain_pi_misfit(u, y)
         sig = max(min(sig, foot / rng.uniform(2.0, 5.0)), 1e-3 * span)
     y = y + rng.normal(0, sig, len(y)) + rng.uniform(-1, 1) * span
     q = sig * rng.uniform(0.1, 0.5)
@@ -195,6 +214,14 @@ def generate(effects=(), *, key, n_samples=2000, noise=None):
     truth["noise_std"] = float(np.sqrt(sig**2 + q**2 / 12))
     u_off = rng.uniform(-2, 2)
     return Record(t, u + u_off, y, source="hidden-effect generator"), truth
+
+
+def _plain_pi_misfit(u, y):
+    """RMS of what a plain PI model (dense threshold grid, fitted weights, offset) leaves of y."""
+    un = (u - 0.5 * (u.max() + u.min())) / (0.5 * np.ptp(u))
+    X = np.column_stack([plays(un, THRESHOLDS, np.full((1, N_PLAYS), un[0]))[0], np.ones(len(u))])
+    res = y - X @ _lstsq(X, y)
+    return float(np.sqrt(np.mean(res**2)))
 
 
 def _pi_states(u, r):

@@ -133,6 +133,7 @@ class _WindowStats(NamedTuple):
     shapes: jax.Array  # (windows,) distinct non-constant shapes among the plays
     zero_frozen: jax.Array  # (windows,) some play is frozen at 0
     steps: jax.Array  # (windows,) samples inside the window at which some play moves
+    twin_triple: jax.Array  # (windows,) three plays whose pairwise |h_i − h_j| are constant
 
 
 def _window_stats(H, u, window: int, stride: int, rtol, atol) -> _WindowStats:
@@ -140,7 +141,8 @@ def _window_stats(H, u, window: int, stride: int, rtol, atol) -> _WindowStats:
 
     Shapes come from the increments d_k = h_k − h_{k−1} inside each window: play i is frozen when
     Σ d_i² is 0, and plays i, j have the same shape up to a constant when Σ (d_i − d_j)² =
-    D_ii + D_jj − 2 D_ij is 0, with D the windowed Gram of the increments.
+    D_ii + D_jj − 2 D_ij is 0, with D the windowed Gram of the increments. Plays i, j are twins
+    when |h_i − h_j| does not change inside the window (its windowed max equals its min).
     """
     T, n = H.shape
     g = math.gcd(window, stride)
@@ -168,13 +170,23 @@ def _window_stats(H, u, window: int, stride: int, rtol, atol) -> _WindowStats:
     earlier = jnp.tril(jnp.ones((n, n), bool), k=-1)
     shapes = jnp.sum(moving & ~jnp.any(same & earlier, axis=-1), axis=-1)
     zero = jnp.any(~moving & (jnp.abs(H[starts]) <= atol), axis=-1)
+    iu, ju = np.triu_indices(n, 1)
+    gap = jnp.abs(Hb[..., iu] - Hb[..., ju])
+    spread = _windows(jnp.max(gap, axis=1), k, q, lax.max, -jnp.inf) - _windows(
+        jnp.min(gap, axis=1), k, q, lax.min, jnp.inf
+    )
+    twin = jnp.zeros(gram.shape, H.dtype).at[:, iu, ju].set((spread <= atol).astype(H.dtype))
+    twin = twin + jnp.swapaxes(twin, -1, -2)
+    # A triangle in the twin graph: i, j twins and some l twin of both.
+    triple = jnp.any((twin > 0) & (twin @ twin > 0), axis=(-1, -2))
     gram = 0.5 * (gram + jnp.swapaxes(gram, -1, -2))
-    return _WindowStats(gram, urange, moving, shapes, zero, steps)
+    return _WindowStats(gram, urange, moving, shapes, zero, steps, triple)
 
 
 def _holds(stats: _WindowStats, n: int):
     """Per window: the sharper condition (see `sharper_condition`)."""
-    return (n - jnp.minimum(stats.shapes, stats.steps) <= 1) & ~stats.zero_frozen
+    fits = n - jnp.minimum(stats.shapes, stats.steps) <= 1
+    return fits & ~stats.zero_frozen & ~stats.twin_triple
 
 
 def _atol(u, r):
@@ -190,14 +202,22 @@ def sharper_condition(H, u, window: int, *, stride: int = 1, rtol=None, atol=Non
     is constant. With K distinct non-constant shapes f_1..f_K, every play output lies in
     span{1, f_1, ..., f_K}, of dimension at most K + 1. On sampled data the shapes are also
     spanned by the J samples at which the plays move (each such sample adds one increment), so
-    the dimension is at most min(K, J) + 1. The n plays can only be linearly independent on the
-    window when
+    the dimension is at most min(K, J) + 1. Two plays are *twins* when |h_i − h_j| is constant on
+    the window (they sit on the same envelope, or are frozen since the same reversal). Three
+    pairwise twins are linearly dependent: with nonzero constant gaps |h_j − h_i| = a,
+    |h_l − h_i| = b, |h_l − h_j| = c, the signs of h_j − h_i and h_l − h_i can only differ
+    where c = a + b and agree only where c = |a − b|, so one of the two never happens and all
+    three outputs lie in span{h_i, s} for one sign pattern s(t) (a zero gap is two equal
+    plays). This happens to plays whose
+    thresholds are closer than the input moves in one sample, which switch envelopes at the same
+    sample. The n plays can only be linearly independent on the window when
 
-        n <= min(K, J) + 1    and    no frozen play sits at 0.
+        n <= min(K, J) + 1,   no frozen play sits at 0,   and no three plays are pairwise twins.
 
-    (Two frozen plays, three plays on one envelope, or two pairs sharing shapes all break it.)
-    Failing it is proof of a singular window. That it is also enough for a positive PE level is
-    what the Monte Carlo map observes, not a theorem.
+    (Two frozen plays, three plays on one envelope, two pairs sharing shapes, or three plays with
+    thresholds unresolved by the sampling all break it.) Failing it is proof of a singular
+    window. That it is also enough for a positive PE level is what the Monte Carlo map
+    observes, not a theorem.
 
     **Arguments:** `H` (T, n) play outputs; `u` (T,) the input; `window`, `stride` as in
     `windowed_gram`; `rtol`, the relative size below which a sum of squared increments counts as
@@ -227,8 +247,9 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
 
     **Returns:** a dict of arrays: `rho`, `c1`, `c1_normalised`, `excited` (n_windows, n)
     booleans, `min_excited` (fewest plays moving in any window), `redundant` (the largest
-    n − min(K, J) over windows: K distinct moving shapes, J samples with movement), `zero_frozen` (some window has a play frozen at
-    0), `sharper` (the sharper condition in every window), `weight_error`.
+    n − min(K, J) over windows: K distinct moving shapes, J samples with movement),
+    `zero_frozen` (some window has a play frozen at 0), `twin_triple` (some window has three
+    pairwise twin plays), `sharper` (the sharper condition in every window), `weight_error`.
     """
     s = settings
     dtype = u.dtype
@@ -251,6 +272,7 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
         min_excited=jnp.min(jnp.sum(stats.moving, axis=-1)),
         redundant=jnp.max(r.shape[0] - jnp.minimum(stats.shapes, stats.steps)),
         zero_frozen=jnp.any(stats.zero_frozen),
+        twin_triple=jnp.any(stats.twin_triple),
         sharper=jnp.all(_holds(stats, r.shape[0])),
         weight_error=jnp.linalg.norm(err) / jnp.linalg.norm(w),
     )
@@ -356,9 +378,10 @@ def pe_map(
 
 
 SHARPER_STATEMENT = (
-    "in every window, n <= min(K, J) + 1 and no frozen play sits at 0, where K is the number of "
-    "distinct non-constant play shapes (outputs equal up to a constant count once) and J the "
-    "number of samples at which some play moves"
+    "in every window, n <= min(K, J) + 1, no frozen play sits at 0, and no three plays are "
+    "pairwise twins, where K is the number of distinct non-constant play shapes (outputs equal "
+    "up to a constant count once), J the number of samples at which some play moves, and two "
+    "plays are twins when |h_i - h_j| is constant on the window"
 )
 
 

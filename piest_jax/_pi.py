@@ -9,7 +9,7 @@ from jaxtyping import Array
 
 from . import _checks
 from ._custom_types import Regressor, Signal, SignalLike, States, Thresholds, Weights
-from ._play import METHODS, Method, _bank, play_step
+from ._play import METHODS, Method, _bank, _uses_kernel, play_step
 
 
 class AbstractHysteresisOperator(eqx.Module):
@@ -70,7 +70,9 @@ class PIOperator(AbstractHysteresisOperator):
         return self.thresholds.shape[0]
 
     def _input(self, u) -> Array:
-        u = _checks.finite(_checks.signal(u), "u")
+        u = _checks.signal(u)
+        if not _uses_kernel(self.method):
+            u = _checks.finite(u, "u")
         return u.astype(jnp.result_type(u, self.thresholds))
 
     def regressor(self, u: SignalLike) -> Regressor:

@@ -70,6 +70,15 @@ def _associative(u: Array, r: Array, x0: Array) -> Array:
     return jnp.maximum(lo_c, jnp.minimum(hi_c, x0))
 
 
+def _uses_kernel(method: str) -> bool:
+    """Whether `method` runs the compiled kernel here (which checks its input for NaN/inf itself)."""
+    if method not in ("kernel", "auto"):
+        return False
+    from . import _kernel
+
+    return _kernel.use_kernel(method)
+
+
 def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
     """Play outputs (T, n) for thresholds r (n,) and initial states x0 (n,)."""
     if method in ("kernel", "auto"):
@@ -85,8 +94,10 @@ def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
     raise ValueError(f"unknown play method {method!r}; choose one of {METHODS}")
 
 
-def _prepare(u, r, x0, x0_name="x0"):
-    u = _checks.finite(_checks.signal(u), "u")
+def _prepare(u, r, x0, x0_name="x0", method="scan"):
+    u = _checks.signal(u)
+    if not _uses_kernel(method):
+        u = _checks.finite(u, "u")
     r = _checks.thresholds(r, "r")
     n = None if r.ndim == 0 else r.shape[0]
     x0 = _checks.per_play(x0, n, x0_name)
@@ -121,7 +132,7 @@ def play(
 
     **Returns:** the play output, (T,) for a scalar `r` and (T, n) for a vector `r`.
     """
-    u, r, rv, x0v = _prepare(u, r, x0)
+    u, r, rv, x0v = _prepare(u, r, x0, method=method)
     out = _bank(u, rv, x0v, method)
     return out[:, 0] if r.ndim == 0 else out
 
@@ -148,7 +159,7 @@ def stop(
 
     **Returns:** the stop output, (T,) or (T, n).
     """
-    u, r, rv, e0v = _prepare(u, r, e0, "e0")
+    u, r, rv, e0v = _prepare(u, r, e0, "e0", method)
     # u - H lies in [-r, r] exactly, but its rounding can step past r by an ulp; the clip restores
     # the bound without changing any value that was inside it.
     out = jnp.clip(u[:, None] - _bank(u, rv, u[0] - e0v, method), -rv, rv)

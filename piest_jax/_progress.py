@@ -2,7 +2,8 @@
 
 import sys
 
-from tqdm.auto import tqdm
+# The plain bar: it only ever draws on a terminal, and the notebook variant would need ipywidgets.
+from tqdm import tqdm
 
 
 def progress(iterable, *, total=None, desc=None, quiet: bool = False):

@@ -126,3 +126,30 @@ def test_errors():
         run_batch(INPUTS, WEIGHTS, (0.0, 5.0, 2.0), key=key)
     with pytest.raises(ValueError, match="`replicates` must be a whole number >= 2"):
         noise_study(key=key, replicates=1)
+
+
+def test_batch_convergence_study_follows_assumption1(tmp_path):
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "batch_convergence.py"
+    spec = importlib.util.spec_from_file_location("batch_convergence", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main(["--replicates", "1", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "batch_convergence.png").stat().st_size > 10_000
+    rep = json.loads((tmp_path / "batch_convergence.json").read_text())
+    assert rep["all_finite"] and rep["members"] == 14 * 4 * 2
+    rho = np.asarray(rep["assumption1_ratio"]["1 s"])
+    c1 = np.asarray(rep["pe_level_c1"]["1 s"])
+    settled = np.asarray(rep["fraction_settled_1pct"])  # (input, estimator, noise)
+    err = np.asarray(rep["median_final_rel_error"])
+    pe = rho >= 1
+    assert 0 < pe.sum() < len(pe)  # the study spans both sides of Assumption 1
+    # Assumption 1 (for T0 = 1 s) and Definition 1 agree on every input of the study
+    np.testing.assert_array_equal(c1 > 1e-9, pe)
+    # with PE the noise-free least-squares estimators (P0 = 1e8, forgetting) converge ...
+    assert np.all(settled[pe][:, 1:3, 0] == 1.0)
+    # ... and without it no estimator does: ω3 is never seen, the error stays large
+    assert np.all(settled[~pe] == 0.0) and np.all(err[~pe] > 0.1)

@@ -11,7 +11,7 @@ from piest_jax import _diagnose, _effects, _hidden, _locate
 from piest_jax._cli import main
 from piest_jax._data import DataError, Record
 
-N_SAMPLES = 500  # pads to the 512-sample length the model tests compile for
+N_SAMPLES = 500
 
 
 def _sine_record(n=600, noise=0.01, seed=0):
@@ -72,43 +72,66 @@ def test_generator_is_reproducible_and_checks_names():
         _hidden.generate(("magic",), key=key)
 
 
-# Hidden-effect records, one per effect. Each search tries the hidden effect only (the choice
-# among all seven, over many records, is the confusion matrix of experiments/diagnose_confusion.py),
-# except where the choice between two close explanations is the point: a delay against a lag.
-RIVAL = {"delay": "linear_dynamics"}
+# The confusion matrix over generated records: every record is searched with all seven candidates.
+# The bars: the right effect named in >= 90 % of single-effect records, no effect in >= 90 %
+# of effect-free ones, the final RMSE within 1.5x the noise when the right effect is named, and
+# both names for two-effect records. experiments/diagnose_confusion.py runs many more records.
+PER_EFFECT = 5
+N_FREE = 10
+PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", "asymmetry"),
+         ("initial_state", "rate_dependence"), ("rate_dependence", "offset_drift")]
+PER_PAIR = 2
 
 
-def _hidden_record(effects, i):
-    return _hidden.generate(effects, key=jax.random.fold_in(jax.random.PRNGKey(7), i), n_samples=N_SAMPLES)
+@pytest.fixture(scope="module")
+def confusion():
+    key = jax.random.PRNGKey(7)
+    classes = [((), N_FREE)] + [((e,), PER_EFFECT) for e in _effects.EFFECTS] + [(p, PER_PAIR) for p in PAIRS]
+    rows = []
+    for ci, (cls, n) in enumerate(classes):
+        for i in range(n):
+            k = jax.random.fold_in(jax.random.fold_in(key, ci), i)
+            rec, truth = _hidden.generate(cls, key=k, n_samples=N_SAMPLES)
+            s = _diagnose.search(rec)
+            _, rmse = _diagnose.evaluate(rec, s["scaling"], s["model_final"])
+            rows.append((cls, s["effects"], rmse / truth["noise_std"], truth["forms"]))
+    return rows
 
 
-@pytest.mark.parametrize("i, effect", list(enumerate(_effects.EFFECTS)))
-def test_hidden_effect_is_named(i, effect):
-    rec, truth = _hidden_record((effect,), i)
-    cands = (effect, RIVAL[effect]) if effect in RIVAL else (effect,)
-    s = _diagnose.search(rec, candidates=cands, max_effects=1, refit=False)
-    assert s["effects"] == [effect], (truth["forms"], s["rounds"])
-    _, rmse = _diagnose.evaluate(rec, s["scaling"], s["theta_final"], s["effects"])
-    _, rmse_base = _diagnose.evaluate(rec, s["scaling"], s["theta_base"], [])
-    assert rmse <= 1.5 * truth["noise_std"] < rmse_base, (rmse, rmse_base, truth["noise_std"])
+def test_confusion_no_effect(confusion):
+    free = [(named, ratio) for cls, named, ratio, _ in confusion if cls == ()]
+    assert sum(named == [] for named, _ in free) >= 0.9 * len(free), free
+    # With nothing to add, the plain PI model is already at the noise floor.
+    assert all(ratio <= 1.5 for named, ratio in free if named == []), free
 
 
-def test_no_effect_gives_no_effect():
-    rec, truth = _hidden_record((), 100)
-    s = _diagnose.search(rec, candidates=("creep", "offset_drift"), max_effects=1, refit=False)
-    assert s["effects"] == [], s["rounds"]
-    assert s["rounds"][0]["named"] is False
-    _, rmse = _diagnose.evaluate(rec, s["scaling"], s["theta_base"], [])
-    assert rmse <= 1.5 * truth["noise_std"]
+def test_confusion_single_effects(confusion):
+    single = [(cls[0], named, ratio, forms) for cls, named, ratio, forms in confusion if len(cls) == 1]
+    right = [(e, ratio) for e, named, ratio, _ in single if named == [e]]
+    assert len(right) >= 0.9 * len(single), [(e, n, f) for e, n, _, f in single if n != [e]]
+    assert all(ratio <= 1.5 for _, ratio in right), [(e, r) for e, r in right if r > 1.5]
+    for e in _effects.EFFECTS:  # no effect is missed wholesale
+        assert sum(x == e for x, _ in right) >= PER_EFFECT - 1, (e, single)
 
 
-def test_two_hidden_effects_are_both_named():
-    rec, truth = _hidden_record(("delay", "asymmetry"), 200)
-    s = _diagnose.search(rec, candidates=("delay", "asymmetry"), max_effects=2, refit=False)
-    assert sorted(s["effects"]) == ["asymmetry", "delay"], (truth["forms"], s["rounds"], s["pruned"])
-    # In order: the first named is the one that removed more held-out error in the first round.
-    first = s["rounds"][0]["candidates"]
-    assert s["effects"][0] == max(first, key=lambda k: first[k]["score"])
+def test_confusion_two_effects(confusion):
+    pairs = [(set(cls), set(named), ratio) for cls, named, ratio, _ in confusion if len(cls) == 2]
+    right = [ratio for c, n, ratio in pairs if c == n]
+    assert len(right) >= 0.9 * len(pairs), pairs
+    assert all(ratio <= 1.5 for ratio in right), pairs
+
+
+def test_effects_are_named_in_order():
+    # The order is that of the rounds: each name was the best-scoring candidate of its round.
+    rec, _ = _hidden.generate(("delay", "asymmetry"), key=jax.random.PRNGKey(200), n_samples=N_SAMPLES)
+    s = _diagnose.search(rec)
+    assert sorted(s["effects"]) == ["asymmetry", "delay"], s["rounds"]
+    bests = [r["best"] for r in s["rounds"] if r["named"]]
+    assert [b for b in bests if b in s["effects"]] == s["effects"]
+    for r in s["rounds"]:
+        c = r["candidates"]
+        assert r["best"] == max(c, key=lambda k: c[k]["score"])
+        assert r["named"] == c[r["best"]]["significant"]
 
 
 def test_unknown_candidate_is_refused():

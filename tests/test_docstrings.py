@@ -81,28 +81,11 @@ def _inherited_doc(cls, attr: str) -> bool:
     return False
 
 
-# Names documented without the **Arguments:** / **Returns:** sections when this test was written.
-# Each is expected to fail; once its docstring is completed the test passes unexpectedly, which
-# fails the run (strict), so the name must then be taken off this list.
-INCOMPLETE: set[str] = {"IndependenceCheck"}
-
-
 def test_public_api_is_not_empty():
     assert {"play", "stop", "PIOperator", "inverse"} <= set(PUBLIC)
 
 
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(
-            n,
-            marks=pytest.mark.xfail(reason="docstring incomplete", strict=True)
-            if n in INCOMPLETE
-            else (),
-        )
-        for n in PUBLIC
-    ],
-)
+@pytest.mark.parametrize("name", PUBLIC)
 def test_public_name_is_documented(name):
     assert _problems(name) == []
 

@@ -1,198 +1,189 @@
-"""The augmented PI model against plain NumPy references, effect by effect, and its fit."""
+"""The effects' regressors against plain references: play loop, history states, delay by
+interpolation, filters against a fine-step ODE solution, low-pass loop, constrained least squares
+against scipy's NNLS, blocked cross-validation against an explicit loop."""
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import optimize
 
-from piest_jax import _effects
-from piest_jax._effects import EFFECTS, N_PLAYS, ModelData
-
-T = 512  # a padded length the diagnosis uses too, so compilations are shared
-DT = 0.01
-PERIOD = 0.05
+from piest_jax import _effects, play
 
 
-def _data(u, y=None, rho=None):
-    u = np.asarray(u, float)
-    n = len(u)
-    f = lambda a: jnp.asarray(a, jnp.float64)  # noqa: E731
-    return ModelData(
-        f(u), f(np.zeros(n) if y is None else y), f(np.zeros(n) if rho is None else rho),
-        f(np.linspace(0, 1, n)), f(np.ones(n)), f(DT), f(DT), f(2 * np.pi * 5.0), f(PERIOD),
-    )
-
-
-def _u():
-    t = np.arange(T) * DT
-    return 0.9 * np.sin(2 * np.pi * 1.3 * t) * np.minimum(t / 0.5, 1) + 0.1 * np.sin(2 * np.pi * 4.1 * t)
-
-
-def _theta(rng):
-    th = _effects.initial_params()
-    base = _effects._sl("base")
-    th[base.start : base.start + N_PLAYS - 1] = rng.uniform(-2.5, -0.5, N_PLAYS - 1)
-    th[base.start + N_PLAYS - 1 : base.stop - 1] = rng.uniform(0.05, 0.4, N_PLAYS)
-    th[base.stop - 1] = 0.3
-    return th
-
-
-def _np_pi(g, r, w, x0, rt=None):
+def _loop_plays(g, r, x0):
     x = np.array(x0, float)
     out = []
     for i, gi in enumerate(g):
-        ri = r if rt is None else rt[i]
-        x = np.maximum(gi - ri, np.minimum(gi + ri, x))
-        out.append(x @ w)
+        ri = r if np.ndim(r) == 1 else r[i]
+        x = np.array([max(gi - rj, min(gi + rj, xj)) for xj, rj in zip(x, ri)])
+        out.append(x)
     return np.array(out)
 
 
-def _pred(th, names, data):
-    return np.asarray(_effects.predict_jit(jnp.asarray(th), jnp.asarray(_effects.group_mask(names)), data))
+def _record(n=400, seed=0, dt=0.01):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    u = 0.8 * np.sin(2 * np.pi * 0.7 * t) * np.minimum(t, 1) + 0.2 * np.sin(2 * np.pi * 2.3 * t)
+    y = rng.normal(size=n)
+    folds = np.minimum(np.arange(n) * 16 // n, 15) % 4
+    return _effects.Prepared(u, y, t, rate_scale=5.0, period=1 / 0.7, folds=folds)
 
 
-@pytest.fixture
-def setup(rng):
-    u = _u()
-    th = _theta(rng)
-    r = np.asarray(_effects.thresholds_of(jnp.asarray(th)))
-    w = np.asarray(_effects.weights_of(jnp.asarray(th)))
-    return u, th, r, w, _np_pi(u, r, w, np.full(N_PLAYS, u[0])) + 0.3
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000))
+def test_plays_match_a_loop_and_the_play_operator(seed):
+    rng = np.random.default_rng(seed)
+    g = np.cumsum(rng.normal(size=60)) * 0.2
+    x0 = rng.uniform(-1, 1, size=(2, _effects.N_PLAYS))
+    out = _effects.plays(g, _effects.THRESHOLDS, x0)
+    for c in range(2):
+        np.testing.assert_allclose(out[c], _loop_plays(g, _effects.THRESHOLDS, x0[c]), atol=1e-14)
+    rt = _effects.THRESHOLDS[None, :] * (1 + rng.uniform(0, 1, size=(60, 1)))
+    np.testing.assert_allclose(_effects.plays(g, rt, x0[:1])[0], _loop_plays(g, rt, x0[0]), atol=1e-14)
+    relaxed = _effects.plays(g, _effects.THRESHOLDS, np.full((1, _effects.N_PLAYS), g[0]))[0]
+    np.testing.assert_allclose(relaxed, np.asarray(play(g, _effects.THRESHOLDS, g[0])), atol=1e-12)
 
 
-def test_thresholds_start_at_zero_and_increase(rng):
-    r = np.asarray(_effects.thresholds_of(jnp.asarray(_theta(rng))))
-    assert r[0] == 0.0 and np.all(np.diff(r) > 0)
+@pytest.mark.parametrize("u0, a", [(0.0, 0.7), (0.2, -0.5), (-0.3, 1.9)])
+def test_history_states_of_one_excursion(u0, a):
+    r = _effects.THRESHOLDS
+    x = _effects.history_states(u0, (a,))
+    # Up (down) to a leaves max(u0, a - r) (min(u0, a + r)); back at u0 the play is clamped to u0 +- r.
+    s = np.sign(a - u0)
+    expect = u0 + s * np.minimum(np.maximum(abs(a - u0) - r, 0.0), r)
+    np.testing.assert_allclose(x, expect, atol=1e-14)
+    assert np.all(np.abs(x - u0) <= r + 1e-14)  # admissible states
 
 
-def test_base_model_is_the_pi_operator(setup):
-    u, th, r, w, ref = setup
-    # Effect parameters away from neutral must not matter while their groups are off.
-    th2 = th.copy()
-    th2[_effects._sl("base").stop :] = 0.37
-    np.testing.assert_allclose(_pred(th2, [], _data(u)), ref, atol=1e-12)
+@pytest.mark.parametrize("d", [0.0, 3.0, 2.4, 0.3])
+def test_delay_is_interpolation(d):
+    X = np.column_stack([np.sin(np.arange(50) * 0.3), np.arange(50.0) ** 1.5])
+    idx = np.arange(50.0)
+    ref = np.column_stack([np.interp(idx - d, idx, X[:, j], left=X[0, j]) for j in range(2)])
+    np.testing.assert_allclose(_effects.delayed(X, d), ref, atol=1e-12)
 
 
-def test_initial_state(setup):
-    u, th, r, w, _ = setup
-    dx = np.linspace(-0.3, 0.3, N_PLAYS)
-    th[_effects._sl("initial_state")] = dx
-    ref = _np_pi(u, r, w, u[0] + dx) + 0.3
-    np.testing.assert_allclose(_pred(th, ["initial_state"], _data(u)), ref, atol=1e-12)
-
-
-def test_integer_delay_shifts_the_output(setup):
-    u, th, r, w, ref = setup
-    th[_effects._sl("delay")] = np.log(np.expm1(3.0))  # softplus^-1(3): three samples
-    out = _pred(th, ["delay"], _data(u))
-    np.testing.assert_allclose(out[3:], ref[:-3], atol=1e-9)
-    np.testing.assert_allclose(out[:3], ref[0], atol=1e-9)
-
-
-def test_rate_dependent_thresholds(setup, rng):
-    u, th, r, w, _ = setup
-    rho = np.abs(np.gradient(u, DT))
-    rho /= rho.max()
-    th[_effects._sl("rate_dependence")] = [0.5, 0.05, np.log(0.5)]
-    rp = (np.sqrt(rho + 1e-3) - np.sqrt(1e-3))[:, None]
-    rt = np.maximum(r[None, :] * (1 + 0.5 * rp) + 0.05 * rp, 0)
-    ref = _np_pi(u, r, w, np.full(N_PLAYS, u[0]), rt) + 0.3
-    np.testing.assert_allclose(_pred(th, ["rate_dependence"], _data(u, rho=rho)), ref, atol=1e-12)
-
-
-def test_asymmetry_polynomials(setup):
-    u, th, r, w, _ = setup
-    th[_effects._sl("asymmetry")] = [0.2, -0.1, 0.15, -0.05]
-    g = u + 0.2 * u**2 - 0.1 * u**3
-    z = _np_pi(g, r, w, np.full(N_PLAYS, g[0]))
-    ref = z + 0.15 * z**2 - 0.05 * z**3 + 0.3
-    np.testing.assert_allclose(_pred(th, ["asymmetry"], _data(u)), ref, atol=1e-12)
-
-
-def test_offset_drift_is_a_cosine_series(setup):
-    u, th, r, w, ref = setup
-    d = np.array([0.1, -0.2, 0.05, 0.3])
-    th[_effects._sl("offset_drift")] = d
-    s = np.linspace(0, 1, T)
-    drift = sum(d[k] * np.cos(np.pi * (k + 1) * s) for k in range(4))
-    np.testing.assert_allclose(_pred(th, ["offset_drift"], _data(u)), ref + drift, atol=1e-12)
-
-
-def test_creep_modes_are_first_order_lags(setup):
-    u, th, r, w, ref = setup
-    c = np.array([0.1, -0.05, 0.2, 0.03])
-    th[_effects._sl("creep")] = np.r_[c, np.log(np.expm1(1.0))]  # scale 1 + softplus = 2
-    z = ref - 0.3
-    taus = PERIOD * 2.0 * np.asarray(_effects.CREEP_TAUS)
-    out = z.copy()
-    for ck, tau in zip(c, taus):
-        a = np.exp(-DT / tau)
-        s, lp = z[0], []
-        for zi in z:
-            s = a * s + (1 - a) * zi
-            lp.append(s)
-        out = out + ck * np.array(lp)
-    np.testing.assert_allclose(_pred(th, ["creep"], _data(u)), out + 0.3, atol=1e-10)
-
-
-@pytest.mark.parametrize("zeta", [0.3, 1.5])
-def test_linear_dynamics_step_response(zeta):
-    # A unit step through the plays (r_1 = 0 follows u exactly): the filter's step response.
-    th = _effects.initial_params()
-    base = _effects._sl("base")
-    th[base.start + N_PLAYS - 1 : base.stop - 1] = 0.0
-    th[base.start + N_PLAYS - 1] = 1.0
-    th[base.stop - 1] = 0.0
-    th[_effects._sl("linear_dynamics")] = [0.0, np.log(np.expm1(zeta))]
-    n = T
-    u = np.r_[0.0, np.ones(n - 1)]
-    out = _pred(th, ["linear_dynamics"], _data(u))
-    wn = 2 * np.pi * 5.0
-    t = np.arange(n) * DT
-    if zeta < 1:
-        wd = wn * np.sqrt(1 - zeta**2)
-        ref = 1 - np.exp(-zeta * wn * t) * (np.cos(wd * t) + zeta * wn / wd * np.sin(wd * t))
+def _ode_reference(v, dt, spec, sub=400):
+    """A fine-step RK4 solution with the input linear between samples, started at rest at v0."""
+    if spec[0] == "first":
+        f = lambda x, vv: np.array([(vv - x[0]) / spec[1]])  # noqa: E731
+        x = np.array([v[0]])
     else:
-        p1, p2 = wn * (zeta - np.sqrt(zeta**2 - 1)), wn * (zeta + np.sqrt(zeta**2 - 1))
-        ref = 1 - (p2 * np.exp(-p1 * t) - p1 * np.exp(-p2 * t)) / (p2 - p1)
-    # The step enters as its average over the first interval (first-order hold): compare from the
-    # second sample on with a tolerance of the response's change over half a step.
-    np.testing.assert_allclose(out[-1], 1.0, atol=1e-6)
-    half = np.max(np.abs(np.diff(ref)))
-    assert np.max(np.abs(out[1:] - np.interp(t[1:] - DT / 2, t, ref))) < 0.5 * half + 1e-9
+        w, z = spec[1], spec[2]
+        f = lambda x, vv: np.array([x[1], w * w * (vv - x[0]) - 2 * z * w * x[1]])  # noqa: E731
+        x = np.array([v[0], 0.0])
+    h, out = dt / sub, [x[0]]
+    for k in range(1, len(v)):
+        for i in range(sub):
+            va, vm, vb = (v[k - 1] + (v[k] - v[k - 1]) * (i + c) / sub for c in (0, 0.5, 1))
+            k1 = f(x, va)
+            k2 = f(x + h / 2 * k1, vm)
+            k3 = f(x + h / 2 * k2, vm)
+            k4 = f(x + h * k3, vb)
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out.append(x[0])
+    return np.array(out)
 
 
-def test_jacobian_matches_finite_differences(setup):
-    u, th, r, w, _ = setup
-    th[_effects._sl("delay")] = np.log(np.expm1(1.4))
-    th[_effects._sl("asymmetry")] = [0.1, 0.0, 0.1, 0.0]
-    names = ["delay", "asymmetry", "linear_dynamics", "creep", "offset_drift"]
-    g = jnp.asarray(_effects.group_mask(names))
-    data = _data(u)
-    f = lambda p: _effects.predict_jit(p, g, data)  # noqa: E731
-    J = np.asarray(jax.jit(jax.jacfwd(_effects.predict))(jnp.asarray(th), g, data))
-    idx = [0, N_PLAYS + 2, _effects._sl("delay").start, _effects._sl("linear_dynamics").start,
-           _effects._sl("asymmetry").start + 2, _effects._sl("offset_drift").start]
-    for i in idx:
-        e = np.zeros_like(th)
-        e[i] = 1e-6
-        fd = (np.asarray(f(jnp.asarray(th + e))) - np.asarray(f(jnp.asarray(th - e)))) / 2e-6
-        np.testing.assert_allclose(J[:, i], fd, atol=2e-5, rtol=1e-4)
+@pytest.mark.parametrize("spec", [("first", 0.03), ("first", 0.004), ("second", 40.0, 0.3), ("second", 150.0, 0.9)])
+def test_dynamics_match_the_ode(spec):
+    dt = 0.01
+    v = np.concatenate([np.zeros(5), np.sin(np.arange(40) * 0.4)])
+    got = _effects.dynamics(v[:, None], spec, dt)[:, 0]
+    np.testing.assert_allclose(got, _ode_reference(v, dt, spec), atol=1e-8)
+    step = _effects.dynamics(np.ones((300, 1)) * 2.0, spec, dt)[:, 0]
+    np.testing.assert_allclose(step, 2.0, atol=1e-12)  # at rest and unit gain
 
 
-def test_fit_recovers_noise_free_pi(setup, rng):
-    u, th, r, w, ref = setup
-    start = _effects.initial_params()
-    start[_effects._sl("base").stop - 1] = 0.0
-    data = _data(u, y=ref)
-    res = _effects.fit(jnp.asarray(start), jnp.asarray(_effects.group_mask([])), data)
-    pred = _pred(np.asarray(res.theta), [], data)
-    assert np.sqrt(np.mean((pred - ref) ** 2)) < 1e-3 * np.ptp(ref)
+def test_lowpass_matches_a_loop():
+    v = np.sin(np.arange(30) * 0.5)
+    lam = np.array([0.5, 0.9])
+    ref = np.empty((30, 2))
+    s = np.full(2, v[0])
+    for i in range(30):
+        s = lam * s + (1 - lam) * v[i]
+        ref[i] = s
+    np.testing.assert_allclose(_effects.lowpass(v, lam), ref, atol=1e-14)
 
 
-def test_unknown_effect_names():
-    with pytest.raises(ValueError, match="unknown effect 'hysteresis'"):
-        _effects.group_mask(["hysteresis"])
-    with pytest.raises(ValueError, match="unknown effect"):
-        _effects.n_effect_params("creepy")
-    assert [_effects.n_effect_params(e) for e in EFFECTS] == [N_PLAYS, 1, 2, 3, 5, 4, 4]
+def test_least_squares_keeps_play_weights_positive_and_matches_nnls():
+    rng = np.random.default_rng(1)
+    p = _record()
+    H = p.plain_plays()
+    A = np.column_stack([H, np.ones(len(H)), rng.normal(size=len(H))])
+    y = H @ np.where(np.arange(_effects.N_PLAYS) % 3 == 0, 0.5, 0.0) - 0.3 * A[:, -1] + 0.01 * rng.normal(size=len(H))
+    w = _effects._lstsq(A, y)
+    assert np.all(w[: _effects.N_PLAYS] >= 0)
+    # Reference: scipy's NNLS with the free columns split into positive and negative parts.
+    k = _effects.N_PLAYS
+    z = optimize.nnls(np.column_stack([A, -A[:, k:]]), y)[0]
+    ref = np.concatenate([z[:k], z[k : A.shape[1]] - z[A.shape[1] :]])
+    np.testing.assert_allclose(A @ w, A @ ref, atol=1e-4)
+
+
+def test_fit_recovers_a_noise_free_delayed_pi():
+    p = _record()
+    w_true = np.linspace(1.0, 0.1, _effects.N_PLAYS)
+    cfg = {"delay": 0.023}
+    X = _effects.linear_part(p, cfg)
+    p.y = X[:, :-1] @ w_true + 0.4
+    f = _effects.fit(p, cfg)
+    np.testing.assert_allclose(f.A @ f.w, p.y, atol=1e-5)
+    np.testing.assert_allclose(_effects.predict(p, cfg, f.w, f.w_v, f.norm), f.A @ f.w, atol=1e-12)
+    # Without the delay the same data leave a clear misfit.
+    f0 = _effects.fit(p, {})
+    assert np.sqrt(np.mean((f0.A @ f0.w - p.y) ** 2)) > 1e-3
+
+
+def test_output_polynomial_reaches_the_nonlinear_optimum():
+    # y = v + a v^2 + b v^3 with v a PI output: Gauss-Newton steps reach an exact fit, which a
+    # fixed-point iteration on the polynomial's columns does not.
+    p = _record()
+    v = _effects.plays(p.u, _effects.THRESHOLDS, np.full((1, 16), p.u[0]))[0] @ np.linspace(0.3, 0.02, 16)
+    vn = (v - 0.5 * (v.max() + v.min())) / (0.5 * np.ptp(v))
+    p.y = vn + 0.3 * vn**2 - 0.2 * vn**3
+    f = _effects.fit(p, {"asymmetry": 0.0})
+    pred = _effects.predict(p, {"asymmetry": 0.0}, f.w, f.w_v, f.norm)
+    assert np.sqrt(np.mean((pred - p.y) ** 2)) < 1e-4
+    np.testing.assert_allclose(f.A @ f.w - f.target, pred - p.y, atol=1e-4)  # linearised = model
+
+
+def test_output_side_effects_are_reproduced_by_predict():
+    p = _record()
+    cfg = {"creep": (0.5, 5.0), "offset_drift": True}
+    p.y = np.tanh(1.5 * _effects.plays(p.u, _effects.THRESHOLDS, np.zeros((1, 16)))[0] @ np.full(16, 0.1))
+    f = _effects.fit(p, cfg)
+    assert f.A.shape[1] == _effects.N_PLAYS + 1 + 2 + _effects.N_DRIFT
+    np.testing.assert_allclose(_effects.predict(p, cfg, f.w, f.w_v, f.norm), f.A @ f.w, atol=1e-12)
+    cfg = {"asymmetry": 0.2, **cfg}
+    f = _effects.fit(p, cfg)
+    pos = _effects.positive_mask(cfg, f.A.shape[1])
+    # Plays and the two creep modes are sign-constrained; offset, polynomial and drift are free.
+    assert pos.sum() == _effects.N_PLAYS + 2 and pos[_effects.N_PLAYS + 1 + _effects.N_POLY]
+    assert np.all(f.w[pos] >= 0)
+
+
+def test_cross_validation_matches_an_explicit_loop():
+    p = _record()
+    A = np.column_stack([p.plain_plays(), np.ones(len(p.y))])
+    mse, err = _effects.cv_mse(p, A)
+    ref = np.empty(len(p.y))
+    for k in range(4):
+        te = p.folds == k
+        ref[te] = p.y[te] - A[te] @ _effects._lstsq(A[~te], p.y[~te])
+    np.testing.assert_allclose(err, ref, atol=1e-9)
+    assert mse == pytest.approx(np.mean(ref**2))
+
+
+def test_grids_and_refinements_are_physical():
+    p = _record()
+    assert all(d > 0 for d in _effects.grid("delay", p))
+    assert all(q[1] > 0 for q in _effects.grid("linear_dynamics", p))
+    for turns in _effects.grid("initial_state", p):
+        x = _effects.history_states(p.u[0], turns)
+        assert np.all(np.abs(x - p.u[0]) <= _effects.THRESHOLDS + 1e-12)
+    (taus,) = _effects.grid("creep", p)
+    assert len(taus) == _effects.N_CREEP and taus[-1] == pytest.approx(p.t[-1] - p.t[0])
+    q = ("second", 100.0, 0.5)
+    assert all(n[1] > 0 and 0 < n[2] <= 1.5 for n in _effects.neighbours("linear_dynamics", q, 0))

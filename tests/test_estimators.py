@@ -197,6 +197,34 @@ def test_non_pe_input_stays_finite_and_windup_is_bounded():
         assert bool(jnp.all(jnp.isfinite(r.weights)))
 
 
+def test_windup_protection_when_excitation_stops():
+    # half a second of the Fig. 5 sine, then the input holds still: h is constant from sample 500
+    u = 10 * np.sin(2 * np.pi * 5 * T)
+    u[500:] = u[499]
+    op = pj.PIOperator(THRESHOLDS, (1.0, 3.0, 5.0))
+    H, y = np.asarray(op.regressor(u)), np.asarray(op(u))
+    assert np.all(H[500:] == H[499])
+    wound = pj.estimate(pj.ForgettingRLS(10.0, 0.95, windup="none"), H, y)
+    # unprotected, P grows like λ^-k in the directions h no longer visits
+    assert float(wound.gain_trace[-1]) > 1e8 * float(wound.gain_trace[499])
+    capped = pj.estimate(pj.ForgettingRLS(10.0, 0.95, windup="trace"), H, y)
+    tr = np.asarray(capped.gain_trace)
+    assert tr.max() <= 30.0 * (1 + 1e-9)
+    np.testing.assert_allclose(tr[-1], 30.0, rtol=1e-9)  # the cap is active, not merely unreached
+    reset = pj.estimate(pj.ForgettingRLS(10.0, 0.95, windup="reset", max_trace=1e3), H, y)
+    tr = np.asarray(reset.gain_trace)
+    assert tr.max() <= 1e3
+    # each time the trace passes the cap, P restarts from P0 (trace 30)
+    restarts = np.nonzero(np.isclose(tr[500:], 30.0, rtol=1e-9))[0]
+    assert len(restarts) >= 3
+    for r in (capped, reset):
+        w = np.asarray(r.weights)
+        assert np.all(np.isfinite(w))
+        # what was learned while the input excited is kept once it stops (noise-free data)
+        np.testing.assert_allclose(w[499], [1.0, 3.0, 5.0], rtol=1e-8)
+        np.testing.assert_allclose(w[-1], w[499], rtol=1e-8)
+
+
 def test_vmap_over_P0_equals_loop():
     H, y, _ = FIG5
     ps = jnp.asarray([1e3, 1e6, 1e9])
@@ -213,6 +241,12 @@ def test_bad_input_errors():
         pj.ContinuousRLS(np.diag([1.0, -1.0, 2.0]), DT)
     with pytest.raises(ValueError, match="must be positive definite"):
         pj.ForgettingRLS(-1.0, 0.9)
+    with pytest.raises(ValueError, match="a positive scalar or a square matrix"):
+        pj.ContinuousRLS(np.ones((2, 3)), DT)
+    with pytest.raises(ValueError, match="`P0` contains NaN or inf"):
+        pj.ContinuousRLS(np.diag([1.0, np.nan, 1.0]), DT)
+    with pytest.raises(ValueError, match="`max_trace` must be positive"):
+        pj.ForgettingRLS(1.0, 0.9, max_trace=0.0)
     with pytest.raises(ValueError, match=r"forgetting factor must be in \(0, 1\]"):
         pj.ForgettingRLS(1.0, 1.5)
     with pytest.raises(ValueError, match=r"forgetting factor must be in \(0, 1\]"):

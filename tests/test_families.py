@@ -92,20 +92,22 @@ def test_noise_is_band_limited(cases):
 
 
 def test_key_based_helpers_match_ranges():
-    key = jax.random.key(0)
-    r = F.draw_thresholds(key, 6)
+    @jax.jit
+    def helpers(key):
+        r = F.draw_thresholds(key, 6)
+        return r, F.draw_initial_states(key, r, 0.3), F.draw_input(key, "sine", T, 1.0)
+
+    r, x0, u = helpers(jax.random.key(0))
     assert r.shape == (6,) and np.all(np.diff(np.asarray(r)) >= 0)
-    x0 = F.draw_initial_states(key, r, 0.3)
     assert np.all(x0 == 0) or np.all(np.abs(np.asarray(x0) - 0.3) <= np.asarray(r))
-    u = F.draw_input(key, "sine", T, 1.0)
     assert u.shape == T.shape and u.dtype == T.dtype
-    w = F.draw_weights(key, 4)
+    w = F.draw_weights(jax.random.key(0), 4)
     assert np.all((np.asarray(w) >= 0.5) & (np.asarray(w) <= 5))
 
 
 def test_dtype_follows_the_grid():
     t32 = jnp.arange(100, dtype=jnp.float32) * 0.01
-    for a in F.draw_case(jax.random.key(1), "chirp", t32, 3):
+    for a in jax.jit(F.draw_case, static_argnums=(1, 3))(jax.random.key(1), "chirp", t32, 3):
         assert a.dtype == jnp.float32
 
 

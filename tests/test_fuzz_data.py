@@ -141,6 +141,13 @@ def test_structural_problems(tmp_path, text, pattern):
     _expect(_write(tmp_path, text), pattern)
 
 
+def test_missing_folder_and_device(tmp_path):
+    for path, pattern in [(tmp_path / "absent.csv", "no such file"), (tmp_path, "is a folder, not a data file"),
+                          ("/dev/null", "is not a regular file")]:
+        with pytest.raises(DataError, match=f"^{re.escape(str(path))}: {pattern}$"):
+            load_record(path)
+
+
 def test_binary_and_wrong_encoding(tmp_path):
     p = tmp_path / "scope.csv"
     p.write_bytes(bytes(range(256)) * 4)

@@ -34,8 +34,9 @@ needs_kernel = pytest.mark.skipif(
 )
 
 DTYPES = (np.float32, np.float64)
-# (T, n): a single sample and play; more plays than one SIMD chunk, not a multiple of the lanes.
-SHAPES = ((1, 1), (40, 37))
+# (T, n): a single sample and play; T not a multiple of the kernel's blocks of 8 (float32) or 4
+# (float64) steps, with n not a multiple of the lanes; more plays than one chunk of vectors.
+SHAPES = ((1, 1), (43, 37), (9, 70))
 GRAD_T, GRAD_N = 40, 37
 
 
@@ -177,7 +178,10 @@ def test_bank_gradients_agree_across_methods(case):
     if _has_ties(u, r, x0):
         return  # at a switching instant the methods take different one-sided derivatives
     want = _bank_grad(u, r, x0, g, method="scan")
-    for method in ("kernel", "associative"):
+    # Compiling the associative scan's gradient takes seconds per dtype; one dtype shows that the
+    # three paths agree (test_gradients.py checks it against finite differences).
+    methods = ("kernel", "associative") if u.dtype == np.float64 else ("kernel",)
+    for method in methods:
         got = _bank_grad(u, r, x0, g, method=method)
         assert all(a.dtype == u.dtype for a in got)
         _assert_grads_close(got, want, u.dtype, GRAD_T * GRAD_N)
@@ -194,6 +198,25 @@ def test_fused_gradients_agree_across_methods(case):
     want = _pi_grad(u, r, x0, w, gy, method="scan")
     got = _pi_grad(u, r, x0, w, gy, method="kernel")
     _assert_grads_close(got, want, u.dtype, GRAD_T * GRAD_N)
+
+
+@needs_kernel
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_gradients_at_every_block_boundary(rng, dtype):
+    # The kernels take W steps at a time (8 float32, 4 float64) and the leftover steps and t = 0
+    # one by one; every split of T around those sizes must give the scan's gradients. The initial
+    # states lie above, inside and below the first input's bounds, so that at t = 0 either bound
+    # (or none) can be the active one.
+    for t in (1, 6, 11):
+        u, r, _, w = _case(rng, t, 5, dtype)
+        x0 = (u[0] + np.array([3.0, -3.0, 0.0, 2.0, -2.5]) * (r + 0.5)).astype(dtype)
+        gy = rng.normal(size=t).astype(dtype)
+        g = rng.normal(size=(t, 5)).astype(dtype)
+        assert not _has_ties(u, r, x0)
+        got = _pi_grad(u, r, x0, w, gy, method="kernel")
+        _assert_grads_close(got, _pi_grad(u, r, x0, w, gy, method="scan"), dtype, t * 5)
+        got = _bank_grad(u, r, x0, g, method="kernel")
+        _assert_grads_close(got, _bank_grad(u, r, x0, g, method="scan"), dtype, t * 5)
 
 
 @needs_kernel
@@ -428,6 +451,29 @@ def test_bad_shapes_and_dtypes_raise():
         pj.play(jnp.zeros((2, 5)), r, method="kernel")
     with pytest.raises(ValueError, match="unknown play method"):
         pj.PIOperator(r, r, method="numba")
+
+
+@needs_kernel
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_input_raises_eagerly_under_jit_vmap_and_grad(bad):
+    u = np.linspace(-1.0, 1.0, 12)
+    u[7] = bad
+    r, w = np.array([0.0, 0.5]), np.array([1.0, 2.0])
+    op = pj.PIOperator(r, w, method="kernel")
+    with pytest.raises(ValueError, match="`u` contains NaN or inf"):
+        pj.play(u, r, method="kernel")
+    with pytest.raises(ValueError, match="`u` contains NaN or inf"):
+        op(u)
+    batch = np.stack([np.zeros(12), u])
+    for fn in (
+        jax.jit(jax.vmap(op)),
+        jax.jit(jax.vmap(lambda v: pj.play(v, r, method="kernel"))),
+        jax.jit(jax.vmap(jax.grad(lambda v: jnp.sum(op(v))))),
+    ):
+        with pytest.raises(Exception, match="`u` contains NaN or inf"):
+            jax.block_until_ready(fn(batch))
+    # A finite batch goes through the same compiled functions.
+    np.testing.assert_array_equal(jax.jit(jax.vmap(op))(batch[:1])[0], op(np.zeros(12)))
 
 
 @needs_kernel

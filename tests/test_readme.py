@@ -1,11 +1,18 @@
-"""The README stays honest: its Python runs, and every `piest` command it shows is a valid one.
+"""The README stays honest: every code block in it is run here, and every `piest` command it
+shows is a valid one.
 
 - Every ```python block is run, in order, as one script in a fresh interpreter inside a temporary
   folder (later blocks may use names from earlier ones, as a reader would in one session).
-- Every `piest ...` command in a ```bash / ```sh / ```console block (and every `example:` line of
-  a command's help) is parsed by the real argument parser, so a renamed command or option fails
-  here. `piest simulate` commands are cheap, so they are also run, in a temporary folder.
-- The test command that CI runs verbatim sits between the `test-command` markers.
+- Every ```bash block is run, in order, as one `bash -euo pipefail` script in another temporary
+  folder, with this interpreter's `bin` folder first on PATH (so `piest` and `python` are the
+  ones under test). Two blocks are special: the main command between the `main-command` markers
+  creates a virtual environment and installs the package, which is what this test runs in
+  already, so only its `piest` commands are run; the test command between the `test-command`
+  markers is what CI runs verbatim (`.ci/run`), so here it is only checked.
+- ```bibtex blocks are checked for balanced braces and the paper's DOI. A block in any other
+  language fails the test: nothing in the README goes unchecked.
+- Every `piest ...` command in a shell block (and every `example:` line of a command's help) is
+  also parsed by the real argument parser, so a renamed command or option fails with its name.
 """
 
 import os
@@ -23,7 +30,9 @@ ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 FENCE = re.compile(r"^```[ \t]*([\w+-]*)[^\n]*\n(.*?)^```[ \t]*$", re.M | re.S)
 SHELL = {"bash", "sh", "shell", "console", "zsh"}
-RUN = {"simulate"}  # commands fast enough to run for real here
+RUN = {"simulate"}  # help examples cheap enough to run for real here
+BIBTEX = {"bibtex", "bib"}
+PYTHON_LANGS = {"python", "py", "python3"}
 
 
 def code_blocks(text: str) -> list[tuple[str, str]]:
@@ -46,6 +55,8 @@ def piest_commands(shell: str) -> list[list[str]]:
         if not line or line.startswith("#"):
             continue
         for part in re.split(r"&&|\|\||;|\|", line):
+            if part.split()[:1] != ["piest"]:
+                continue  # not a `piest` command (and perhaps a fragment of a quoted string)
             words = shlex.split(part, comments=True)
             if words and words[0] == "piest":
                 found.append(words[1:])
@@ -57,7 +68,7 @@ def _readme() -> str:
 
 
 BLOCKS = code_blocks(_readme())
-PYTHON = [code for lang, code in BLOCKS if lang in ("python", "py", "python3")]
+PYTHON = [code for lang, code in BLOCKS if lang in PYTHON_LANGS]
 COMMAND_LINES = [args for lang, code in BLOCKS if lang in SHELL for args in piest_commands(code)]
 HELP_EXAMPLES = [
     piest_commands(line.split("example:", 1)[1])[0]
@@ -74,28 +85,69 @@ def _id(args) -> str:
 def test_readme_has_the_two_commands():
     text = _readme()
     for marker in ("main-command", "test-command"):
-        m = re.search(rf"<!-- {marker} -->(.*?)<!-- /{marker} -->", text, re.S)
-        assert m, f"README.md has no block between the {marker} markers"
-        blocks = code_blocks(m.group(1).strip() + "\n")
+        blocks = code_blocks(_marked(text, marker).strip() + "\n")
         assert blocks and blocks[0][0] in SHELL and blocks[0][1].strip()
-    test_cmd = re.search(r"<!-- test-command -->(.*?)<!-- /test-command -->", text, re.S).group(1)
-    assert "pytest" in test_cmd
+    assert "pytest" in _marked(text, "test-command")
+    main_commands = piest_commands(code_blocks(_marked(text, "main-command").strip() + "\n")[0][1])
+    assert main_commands, "the main command should run `piest`"
 
 
-@pytest.mark.skipif(not PYTHON, reason="README.md has no Python blocks yet")
+def _marked(text: str, marker: str) -> str:
+    m = re.search(rf"<!-- {marker} -->(.*?)<!-- /{marker} -->", text, re.S)
+    assert m, f"README.md has no block between the {marker} markers"
+    return m.group(1)
+
+
+def shell_script(text: str) -> str:
+    """The README's shell blocks as one script, as this test runs them (see the module docstring)."""
+    main_block = code_blocks(_marked(text, "main-command").strip() + "\n")[0][1]
+    test_block = code_blocks(_marked(text, "test-command").strip() + "\n")[0][1]
+    parts = []
+    for lang, code in code_blocks(text):
+        if lang not in SHELL or code == test_block:
+            continue
+        if code == main_block:
+            code = "\n".join(shlex.join(["piest", *args]) for args in piest_commands(code)) + "\n"
+        parts.append(code)
+    return "set -euo pipefail\n" + "\n".join(parts)
+
+
+def _env() -> dict:
+    bin_dir = str(Path(sys.executable).parent)
+    return dict(os.environ, MPLBACKEND="Agg", PATH=bin_dir + os.pathsep + os.environ.get("PATH", ""))
+
+
+def _run(cmd, cwd, what) -> None:
+    proc = subprocess.run(cmd, cwd=cwd, env=_env(), capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, f"README {what} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+
+
+def test_every_block_is_run_or_checked():
+    langs = {lang for lang, _ in BLOCKS}
+    unchecked = langs - SHELL - PYTHON_LANGS - BIBTEX
+    assert not unchecked, f"README.md has blocks no test runs: {sorted(unchecked)} (use bash or python)"
+    assert PYTHON, "README.md should show the Python API"
+    assert COMMAND_LINES, "README.md should show the command line"
+
+
 def test_readme_python_runs(tmp_path):
-    script = "\n\n".join(PYTHON)
-    (tmp_path / "readme_blocks.py").write_text(script, encoding="utf-8")
-    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(ROOT))
-    proc = subprocess.run(
-        [sys.executable, "readme_blocks.py"],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert proc.returncode == 0, f"README Python failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+    (tmp_path / "readme_blocks.py").write_text("\n\n".join(PYTHON), encoding="utf-8")
+    _run([sys.executable, "readme_blocks.py"], tmp_path, "Python")
+
+
+def test_readme_shell_runs(tmp_path):
+    script = shell_script(_readme())
+    assert "piest" in script
+    (tmp_path / "readme_blocks.sh").write_text(script, encoding="utf-8")
+    _run(["bash", "readme_blocks.sh"], tmp_path, "shell blocks")
+
+
+def test_readme_bibtex_is_well_formed():
+    entries = [code for lang, code in BLOCKS if lang in BIBTEX]
+    for code in entries:
+        assert code.count("{") == code.count("}"), "unbalanced braces in a bibtex block"
+        assert re.match(r"\s*@\w+\{[\w:-]+,", code), "a bibtex block should start with @type{key,"
+    assert any("10.1115/1.4050189" in code for code in entries), "cite the paper by its DOI"
 
 
 @pytest.mark.parametrize("args", COMMAND_LINES + HELP_EXAMPLES, ids=_id)
@@ -112,9 +164,7 @@ def test_piest_command_parses(args):
     assert parsed.command in {m.NAME for m in COMMANDS}
 
 
-@pytest.mark.parametrize(
-    "args", [a for a in COMMAND_LINES + HELP_EXAMPLES if a and a[0] in RUN], ids=_id
-)
+@pytest.mark.parametrize("args", [a for a in HELP_EXAMPLES if a and a[0] in RUN], ids=_id)
 def test_cheap_piest_command_runs(args, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     code = main([*args, "--quiet"] if "--quiet" not in args else args)

@@ -210,7 +210,7 @@ except ValueError as e:
 # `jax.vmap`.
 
 # %%
-T_long = 20_000 if SMALL else 200_000
+T_long = 2_000 if SMALL else 200_000
 u_long = _signals.multisine(jnp.arange(T_long) * 1e-4, [8.0, 3.0], [3.0, 41.0])
 r_bank = jnp.linspace(0.0, 8.0, 16)
 outs, times = {}, {}

@@ -62,7 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
         description=(
             "Prandtl-Ishlinskii hysteresis toolkit. Each command writes its figures and a JSON "
             "report into --out and prints the paths it wrote. Exit codes: 0 success, 2 bad "
-            "input or arguments (one-line message), 1 an internal error, 130 interrupted."
+            "input or arguments (one-line message), 1 an internal error, 130 interrupted (Ctrl-C), "
+            "143 terminated (kill), 141 the reader of the output went away."
         ),
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -98,6 +99,11 @@ def main(argv=None) -> int:
     except _Terminated:
         print(f"piest {args.command}: terminated", file=sys.stderr)
         return 128 + signal.SIGTERM
+    except BrokenPipeError:
+        # The reader of stdout went away (`piest ... | head -1`): stop quietly, as a shell tool
+        # killed by SIGPIPE would, and keep the interpreter from failing again on its last flush.
+        _silence_stdout()
+        return 128 + signal.SIGPIPE
     except (CLIError, ValueError, OSError) as e:
         if os.environ.get("PIEST_DEBUG"):
             raise
@@ -113,6 +119,15 @@ def main(argv=None) -> int:
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _silence_stdout() -> None:
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # stdout is not a real file (captured)
+        pass
 
 
 def _internal(args, e: Exception) -> int:

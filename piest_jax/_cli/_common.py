@@ -52,8 +52,3 @@ def float_list(text: str) -> list[float]:
     if any(v != v or v in (float("inf"), float("-inf")) for v in vals):
         raise argparse.ArgumentTypeError(f"NaN or inf in {text!r}")
     return vals
-
-
-def report_written(paths, quiet: bool) -> None:
-    for p in paths:
-        print(p)

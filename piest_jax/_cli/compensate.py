@@ -94,9 +94,13 @@ def run(args) -> int:
     t, yd, col = load_desired(args.desired, args.column)
     if args.initial_states is not None:
         x0 = np.full(r.shape, args.initial_states)
-    x0 = np.asarray(admissible_states(r, x0))
-    op = PIOperator(r, w, x0)
-    u = np.asarray(feedforward(op, yd, offset=c))
+    try:
+        x0 = np.asarray(admissible_states(r, x0))
+        op = PIOperator(r, w, x0)
+        u = np.asarray(feedforward(op, yd, offset=c))
+    except ValueError as e:
+        # The desired output was checked on reading: what is left is the model (not invertible).
+        raise CLIError(f"{args.model}: {e}") from None
     ym = np.asarray(op(u)) + c
     written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
     summary = {

@@ -10,13 +10,14 @@ from ._common import CLIError, add_output_options
 NAME = "diagnose"
 HELP = "name the effects a plain PI model misses and show the gap shrink"
 DESCRIPTION = """\
-Fit a plain PI model (8 fitted thresholds, output offset, relaxed initial states) to DATA.csv
-(columns t, u, y), locate where the residual is structured, then try each effect
-(initial_state, delay, linear_dynamics, rate_dependence, creep, asymmetry, offset_drift) and
-name it only when it wins clearly on held-out blocks against the noise floor; repeat on what
-remains. Writes
+Fit a plain PI model (16 plays on a threshold grid, positive weights, output offset, relaxed
+initial states) to DATA.csv (columns t, u, y), locate where the residual is structured, then try
+each effect (initial_state, delay, linear_dynamics, rate_dependence, creep, asymmetry,
+offset_drift) and name it only when it wins clearly on held-out blocks against the noise floor;
+repeat on what remains. Writes
   DIR/report.json  effects (in order), baseline_rmse, final_rmse, noise_std_estimate,
-                   candidates (held-out scores), rounds, where (located disagreements), and
+                   candidates (first-round held-out scores), parameters (of the named
+                   effects), rounds, where (located disagreements), and
                    validation {baseline_rmse, final_rmse} with --validate
   DIR/report.png   residuals and loops, before and after
   DIR/report.md    a short written report
@@ -74,7 +75,7 @@ def _markdown(rep):
         "",
         f"Effects named, in order: {eff}.",
         "",
-        f"Noise floor (robust std of second differences / sqrt 6): {rep['noise_std_estimate']:.4g}.",
+        f"Noise floor (robust std of the residual of a local cubic fit): {rep['noise_std_estimate']:.4g}.",
         "",
         "| | plain PI | with the named effects |",
         "|---|---|---|",
@@ -86,15 +87,19 @@ def _markdown(rep):
     if "validation" in rep:
         v = rep["validation"]
         lines.append(f"| RMSE, validation record | {v['baseline_rmse']:.4g} | {v['final_rmse']:.4g} |")
+    for e, par in rep.get("parameters", {}).items():
+        if par:
+            lines.append(f"- `{e}`: " + ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                                                    for k, v in par.items()))
     lines += ["", "## Rounds (held-out RMSE per candidate; score = penalised gain / noise variance)", ""]
     for i, r in enumerate(rep["rounds"]):
         lines.append(f"Round {i + 1}: current held-out RMSE {r['current_heldout_rmse']:.4g}; best "
                      f"`{r['best']}` ({'named' if r['named'] else 'not significant'}).")
         lines.append("")
-        lines.append("| candidate | held-out RMSE | score | t |")
+        lines.append("| candidate | held-out RMSE | score | significant |")
         lines.append("|---|---|---|---|")
         for k, c in sorted(r["candidates"].items(), key=lambda kv: -kv[1]["score"]):
-            lines.append(f"| {k} | {c['heldout_rmse']:.4g} | {c['score']:.3g} | {c['t']:.2g} |")
+            lines.append(f"| {k} | {c['heldout_rmse']:.4g} | {c['score']:.3g} | {c['significant']} |")
         lines.append("")
     lines += ["## Where the plain PI model disagrees with the data", ""]
     for w in rep["where"]:

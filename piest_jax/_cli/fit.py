@@ -9,7 +9,7 @@ from .. import _io
 from .._data import load_record
 from .._fit import SOLVERS, fit_pi
 from .._modelsize import CRITERIA, select_plays
-from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "fit"
 HELP = "fit thresholds, weights and offset of a PI model to a measured (t, u, y) record"
@@ -22,9 +22,9 @@ through the play scan (Levenberg-Marquardt by default), thresholds included, and
   DIR/fit.png          the measured and fitted loops and the residual over time
   DIR/validation.png   the same for --validate VAL.csv
 Thresholds at or above half the input's peak-to-peak range cannot be excited and are flagged.
---plays auto picks the number of plays by held-out error on the last 30 % of the record
-(or --criterion bic). Weights are kept positive (so the model can be inverted by
-`piest compensate`) unless --signed-weights.
+--plays auto (the default) picks the number of plays among --candidates by held-out error
+on the last 30 % of the record (or --criterion bic). Weights are kept positive (so the
+model can be inverted by `piest compensate`) unless --signed-weights.
 
 example:  piest fit data.csv --plays 4 --validate val.csv --out fitted"""
 
@@ -40,10 +40,25 @@ def plays_arg(text: str):
         raise argparse.ArgumentTypeError(f"{e}; or 'auto'") from None
 
 
+def plays_list(text: str) -> list[int]:
+    items = [s.strip() for s in text.split(",")]
+    try:
+        values = [positive_int(s) for s in items]
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(f"expected positive whole numbers like 2,3,4: {e}") from None
+    if len(set(values)) != len(values):
+        raise argparse.ArgumentTypeError(f"repeated number of plays in {text!r}")
+    return values
+
+
 def add_arguments(p):
     p.add_argument("data", metavar="DATA.csv", help="the identification record (t, u, y)")
     p.add_argument(
-        "--plays", type=plays_arg, required=True, metavar="N|auto", help="number of plays, or auto"
+        "--plays",
+        type=plays_arg,
+        default="auto",
+        metavar="N|auto",
+        help="number of plays, or auto to choose it from the data (default auto)",
     )
     p.add_argument("--validate", metavar="VAL.csv", help="a second record to evaluate the fit on")
     p.add_argument("--solver", choices=SOLVERS, default="lm", help="lm (default), gn or bfgs")
@@ -51,7 +66,7 @@ def add_arguments(p):
     p.add_argument("--starts", type=positive_int, default=4, help="starts solved at once (default 4)")
     p.add_argument(
         "--candidates",
-        type=float_list,
+        type=plays_list,
         default=[1, 2, 3, 4, 5, 6, 8, 10],
         help="numbers of plays tried by --plays auto (default 1,2,3,4,5,6,8,10)",
     )
@@ -86,12 +101,12 @@ def run(args) -> int:
 
     if args.fit_initial_states and args.initial_states is not None:
         raise CLIError("give either --initial-states or --fit-initial-states, not both")
-    cands = [int(c) for c in args.candidates]
-    if any(c != v or c < 1 for c, v in zip(cands, args.candidates)):
-        raise CLIError(f"--candidates must be positive whole numbers, got {args.candidates}")
     names = OUTPUTS if args.validate else OUTPUTS[:2]
     out = _io.check_outputs(args.out, names, args.force)
     rec = load_record(args.data, resample=args.resample)
+    if np.ptp(rec.u) == 0:
+        raise CLIError(f"{args.data}: the input u is constant ({rec.u[0]:g}): it excites no play, "
+                       "so there is nothing to fit")
     val = load_record(args.validate, resample=args.resample) if args.validate else None
     opts = dict(
         solver=args.solver,
@@ -105,10 +120,14 @@ def run(args) -> int:
     )
     selection = None
     if args.plays == "auto":
-        too_many = [c for c in cands if 2 * c + 1 > rec.n_samples]
-        if too_many:
+        # A candidate needs 2n + 1 parameters (3n + 1 with fitted states) on the fitted samples.
+        per_play = 3 if args.fit_initial_states else 2
+        n_fit = rec.n_samples if args.criterion == "bic" else int(round(0.7 * rec.n_samples))
+        cands = [c for c in args.candidates if per_play * c + 1 <= n_fit]
+        if not cands:
             raise CLIError(
-                f"--candidates {too_many} need more parameters than the {rec.n_samples} samples"
+                f"{args.data}: {rec.n_samples} samples are too few to choose among --candidates "
+                f"{','.join(map(str, args.candidates))} (each needs {per_play}n + 1 fitted samples)"
             )
         sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, **opts)
         f = sel.fit
@@ -148,7 +167,7 @@ def run(args) -> int:
                                       dpi=110))
     written.insert(0, _io.write_json(out / "fit.json", report))
     if np.any(np.asarray(f.flagged)):
-        idx = [i + 1 for i in np.flatnonzero(np.asarray(f.flagged))]
+        idx = [int(i) + 1 for i in np.flatnonzero(np.asarray(f.flagged))]
         print(f"piest fit: note: plays {idx} are not excited by the input; their thresholds are "
               "not determined by the data", file=sys.stderr)
     for p in written:

@@ -6,14 +6,13 @@ they are needed. The forward outputs equal the pure-JAX scan: H to the last bit 
 operations), y up to the order in which the n weighted plays are summed.
 
 Gradients go through `jax.custom_vjp`. The differentiated forward pass also records, per step and
-play, which branch of the clamp was active (lower bound u - r, upper bound u + r, or hold; two bits
-per play and step), and the backward kernel runs the adjoint recurrence backwards in time over
-those codes. At a kink (the old
-state exactly equal to a bound) the kernel counts the step as a hold, so the derivative is the
-one-sided derivative in which the play does not move; the pure-JAX scan instead averages the two
-sides. Likewise for a zero threshold, where both bounds equal u: the kernel gives the threshold
-derivative from the admissible side r > 0, the scan the average of both sides (zero). Both agree
-everywhere else.
+play, one bit: whether a bound moved the state (which bound follows from the direction of the
+input), and the backward kernel runs the adjoint recurrence backwards in time over those bits. At a
+kink (the old state exactly equal to a bound) the kernel counts the step as a hold, so the
+derivative is the one-sided derivative in which the play does not move; the pure-JAX scan instead
+averages the two sides. Likewise for a zero threshold, where both bounds equal u: the kernel gives
+the threshold derivative from the admissible side r > 0, the scan the average of both sides (zero).
+Both agree everywhere else.
 
 Batching (`jax.vmap`) hands the whole batch to one kernel call (`vmap_method="broadcast_all"`), which
 splits the signals across the CPU cores (`PIEST_KERNEL_THREADS` caps the thread count).
@@ -28,9 +27,13 @@ import importlib
 import importlib.util
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax import lax
 from jaxtyping import Array
+
+from .. import _checks
 
 def _missing_isa(required) -> list[str]:
     """The instruction-set extensions in `required` that this CPU lacks (Linux; else none)."""
@@ -128,13 +131,16 @@ def _suffix(x: Array) -> str:
 
 
 def _code_bytes(n: int, dtype) -> int:
-    # Per step, two bit masks (upper / lower bound active) per 32-byte vector of padded plays.
-    lanes = _ext.lanes()
-    padded = -(-n // lanes) * lanes
-    return 2 * padded // (32 // jnp.dtype(dtype).itemsize)
+    # Bytes of branch codes per step (one bit per play, padded), as the kernel lays them out.
+    return _ext.code_bytes(n, jnp.dtype(dtype).itemsize)
 
 
 def _call(kind: str, x: Array, shapes, *args):
+    if not available():
+        raise RuntimeError(
+            f"piest_jax: the compiled play kernel is not available ({_IMPORT_ERROR}); "
+            "use method='scan' or 'auto'"
+        )
     return jax.ffi.ffi_call(
         f"piest_{kind}_{_suffix(x)}", shapes, vmap_method="broadcast_all"
     )(*args)
@@ -161,11 +167,27 @@ def _validate(u: Array, r: Array, **per_play: Array) -> None:
             )
 
 
+def _check_finite(u: Array, r: Array) -> Array:
+    """`r`, made to depend on a check that `u` holds no NaN or inf.
+
+    `_checks.finite` attaches its `eqx.error_if` to the checked array itself, which for a long
+    signal makes XLA copy the whole signal (under `vmap` and `grad`, into freshly faulted memory).
+    Here the error is attached to a zero scalar that is added to the thresholds, so the check
+    costs one fused reduction over `u` (u * 0 is NaN exactly where u is NaN or inf) and adds
+    nothing (r + 0 == r).
+    """
+    if _checks.is_concrete(u):
+        _checks.finite(u, "u")
+        return r
+    bad = ~jnp.isfinite(jnp.sum(lax.stop_gradient(u) * 0))
+    return r + eqx.error_if(jnp.zeros((), r.dtype), bad, "`u` contains NaN or inf")
+
+
 def bank(u: Array, r: Array, x0: Array) -> Array:
     """The play outputs H (T, n) for input `u` (T,), thresholds `r` (n,) and states `x0` (n,).
 
-    All three must share one float dtype (float32 or float64); anything else raises `ValueError`.
-    Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    All three must share one float dtype (float32 or float64); anything else raises `ValueError`,
+    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
     respect to all three arguments.
 
     **Arguments:**
@@ -178,7 +200,7 @@ def bank(u: Array, r: Array, x0: Array) -> Array:
     """
     u, r, x0 = (jnp.asarray(a) for a in (u, r, x0))
     _validate(u, r, x0=x0)
-    return _bank(u, r, x0)
+    return _bank(u, _check_finite(u, r), x0)
 
 
 @jax.custom_vjp
@@ -205,8 +227,8 @@ _bank.defvjp(_bank_fwd, _bank_bwd)
 def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
     """The fused PI output y_t = Σ_j w_j H_{r_j}[u](t), without materialising H.
 
-    All four must share one float dtype (float32 or float64); anything else raises `ValueError`.
-    Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    All four must share one float dtype (float32 or float64); anything else raises `ValueError`,
+    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
     respect to all four arguments.
 
     **Arguments:**
@@ -221,7 +243,7 @@ def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
     """
     u, r, x0, w = (jnp.asarray(a) for a in (u, r, x0, w))
     _validate(u, r, x0=x0, w=w)
-    return _pi(u, r, x0, w)
+    return _pi(u, _check_finite(u, r), x0, w)
 
 
 @jax.custom_vjp

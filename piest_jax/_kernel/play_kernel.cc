@@ -3,20 +3,21 @@
 // One play step is the clamp x_t = max(u_t - r, min(u_t + r, x_{t-1})), evaluated with exactly the
 // operations of the pure-JAX scan, so the play outputs agree with it to the last bit. The plays of a
 // bank are independent lanes: the inner loops run across plays over contiguous arrays padded to a
-// multiple of kLanes, which the compiler turns into SIMD code without branches.
+// multiple of the vector width, which the compiler turns into SIMD code without branches.
 //
 // The fused PI output y_t = sum_j w_j x_{t,j} is summed in a fixed order (lane-wise partial sums
-// over the vectors of a chunk of plays, then a halving tree, then chunk after chunk), so a build
-// gives the same bits on every call.
+// over the vectors of a chunk of plays, then a tree over the lanes, then chunk after chunk), so a
+// build gives the same bits on every call. With AVX the lane sums of W consecutive steps are taken
+// together by a transpose of horizontal adds instead of one scalar tree per step.
 //
-// Backward pass. Each step records which branch was active, as two bit masks per vector of plays
-// (bit i of the first byte: lane i was moved by a bound, u + r or u - r; of the second: the bound
-// was the lower one, u - r; neither: the state was held). At a tie (the old state equal to a bound)
-// the step counts as held. Bit masks keep the residual small (2 bytes per 8 float plays per step)
-// and turn back into lane masks with one table lookup each. The adjoint is a reverse recurrence:
-// nu_j accumulates the output cotangents of play j over the current run of held steps; at an active
+// Backward pass. Each step of the differentiated forward pass records one bit per play: whether a
+// bound moved the state (see CodeBytes for why the direction need not be stored). At a tie (the old
+// state equal to a bound) the step counts as held. The adjoint is a reverse recurrence: nu_j
+// accumulates the output cotangents of play j over the current run of held steps; at an active
 // step it flows to u_t (and with sign +1 on the upper, -1 on the lower bound to r_j) and resets;
 // what is left at t = 0 flows to the initial state.
+//
+// Large outputs are advised onto transparent huge pages before they are written (AdviseHugePages).
 //
 // Every buffer may carry leading batch dimensions (from vmap); they are flattened into B signals
 // and split across threads.
@@ -28,6 +29,7 @@
 #endif
 
 #include <algorithm>
+#include <atomic>
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
@@ -36,40 +38,87 @@
 #include <type_traits>
 #include <vector>
 
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
+
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
 
 namespace {
 
-// Play lanes are padded to a multiple of kLanes; a chunk of up to kChunk vectors is run through the
-// whole signal at once.
-constexpr int64_t kLanes = 8;
-constexpr int kChunk = 4;
-
-int64_t Padded(int64_t n) { return (n + kLanes - 1) / kLanes * kLanes; }
+// The forward pass runs a chunk of up to kChunk vectors of plays through the whole signal at once,
+// with the chunk's states in registers; the backward pass, which keeps three accumulators per
+// vector, chunks of up to kChunkBwd.
+constexpr int kChunk = 8;
+constexpr int kChunkBwd = 4;
 
 // Explicit SIMD through GCC/Clang vector extensions: 32-byte vectors (two SSE registers on
-// machines without AVX), so the state of a chunk of plays stays in registers for the whole signal.
+// machines without AVX).
 template <typename T>
 struct Vec;
 template <>
 struct Vec<float> {
   typedef float type __attribute__((vector_size(32)));
   typedef int32_t mask __attribute__((vector_size(32)));
+  typedef int32_t lane;
   static constexpr int kWidth = 8;
 };
 template <>
 struct Vec<double> {
   typedef double type __attribute__((vector_size(32)));
   typedef int64_t mask __attribute__((vector_size(32)));
+  typedef int64_t lane;
   static constexpr int kWidth = 4;
 };
 
-// Bytes of branch codes per step for np padded plays: two bit masks per vector.
+// Play lanes are padded to a multiple of the vector width.
+template <typename T>
+int64_t Padded(int64_t n) {
+  constexpr int64_t W = Vec<T>::kWidth;
+  return (n + W - 1) / W * W;
+}
+
+// Copies the first `count` (1 <= count <= kWidth) lanes between a vector and memory. Rows of H and
+// of its cotangent are n lanes long, so the last vector of a row is usually partial; a switch on
+// the (loop-invariant, so well predicted) count gives fixed-size copies instead of a memcpy call.
+template <typename T>
+inline void StoreLanes(T* dst, const typename Vec<T>::type& v, int64_t count) {
+  switch (count) {
+#define PIEST_CASE(K) \
+  case K:             \
+    std::memcpy(dst, &v, K * sizeof(T)); \
+    break;
+    PIEST_CASE(1) PIEST_CASE(2) PIEST_CASE(3) PIEST_CASE(4)
+    PIEST_CASE(5) PIEST_CASE(6) PIEST_CASE(7) PIEST_CASE(8)
+#undef PIEST_CASE
+    default: break;
+  }
+}
+template <typename T>
+inline void LoadLanes(typename Vec<T>::type& v, const T* src, int64_t count) {
+  switch (count) {
+#define PIEST_CASE(K) \
+  case K:             \
+    std::memcpy(&v, src, K * sizeof(T)); \
+    break;
+    PIEST_CASE(1) PIEST_CASE(2) PIEST_CASE(3) PIEST_CASE(4)
+    PIEST_CASE(5) PIEST_CASE(6) PIEST_CASE(7) PIEST_CASE(8)
+#undef PIEST_CASE
+    default: break;
+  }
+}
+
+// Branch codes: one bit per play and step, set when a bound moved the state (x_t != x_{t-1}), one
+// byte per vector of plays (its low kWidth bits). At a tie (the old state equal to a bound) the
+// step counts as held. Which bound moved it need not be stored: a play can only be pushed down by
+// its upper bound when the input falls (u_t + r < x_{t-1} <= u_{t-1} + r, and rounding is
+// monotonic) and up by its lower bound when it rises, so for t >= 1 the sign of u_t - u_{t-1} tells;
+// at t = 0 the backward pass compares x0 with u_0 + r itself.
 template <typename T>
 int64_t CodeBytes(int64_t np) {
-  return 2 * np / Vec<T>::kWidth;
+  return np / Vec<T>::kWidth;
 }
 
 // Lane mask (all ones or zero per lane) -> one bit per lane.
@@ -81,15 +130,6 @@ inline uint8_t ToBits(typename Vec<T>::mask m) {
   } else {
     return static_cast<uint8_t>(_mm256_movemask_pd(reinterpret_cast<__m256d>(m)));
   }
-#elif defined(__SSE2__)
-  __m128 half[2];
-  std::memcpy(half, &m, sizeof(m));
-  if constexpr (sizeof(T) == 4) {
-    return static_cast<uint8_t>(_mm_movemask_ps(half[0]) | (_mm_movemask_ps(half[1]) << 4));
-  } else {
-    return static_cast<uint8_t>(_mm_movemask_pd(_mm_castps_pd(half[0])) |
-                                (_mm_movemask_pd(_mm_castps_pd(half[1])) << 2));
-  }
 #else
   uint8_t bits = 0;
   for (int i = 0; i < Vec<T>::kWidth; ++i) bits |= static_cast<uint8_t>(m[i] != 0) << i;
@@ -97,44 +137,76 @@ inline uint8_t ToBits(typename Vec<T>::mask m) {
 #endif
 }
 
-// One bit per lane -> lane mask, by table lookup (one load instead of broadcast, and, compare).
-// kSign selects a table whose set lanes hold only the sign bit (to flip signs with an xor).
-template <typename T, bool kSign>
+// One bit per lane -> lane mask, by table lookup (a load instead of broadcast, and, compare).
+template <typename T>
 struct BitTable {
   static constexpr int kWidth = Vec<T>::kWidth;
-  using Lane = typename std::conditional<sizeof(T) == 4, int32_t, int64_t>::type;
-  static constexpr Lane kSet =
-      kSign ? static_cast<Lane>(Lane(1) << (8 * sizeof(Lane) - 1)) : Lane(-1);
-  alignas(32) Lane lanes[1 << kWidth][kWidth];
+  using L = typename Vec<T>::lane;
+  alignas(32) L lanes[1 << kWidth][kWidth];
   constexpr BitTable() : lanes() {
     for (int bits = 0; bits < (1 << kWidth); ++bits) {
-      for (int i = 0; i < kWidth; ++i) lanes[bits][i] = (bits >> i) & 1 ? kSet : Lane(0);
+      for (int i = 0; i < kWidth; ++i) lanes[bits][i] = (bits >> i) & 1 ? L(-1) : L(0);
     }
   }
 };
-template <typename T, bool kSign>
-constexpr BitTable<T, kSign> kBitTable{};
+template <typename T>
+constexpr BitTable<T> kBitTable{};
 
-template <typename T, bool kSign = false>
+template <typename T>
 inline typename Vec<T>::mask FromBits(uint8_t bits) {
   typename Vec<T>::mask m;
-  std::memcpy(&m, kBitTable<T, kSign>.lanes[bits], sizeof(m));
+  std::memcpy(&m, kBitTable<T>.lanes[bits], sizeof(m));
   return m;
 }
 
-// Horizontal sum in a fixed halving order.
+// Horizontal sums. Every sum over the lanes of a vector uses one fixed tree, adjacent pairs first,
+// ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7)), whether it is taken one step at a time (HSum)
+// or for kWidth consecutive steps at once (BlockSum: a transpose made of horizontal adds, giving one
+// vector of kWidth sums), so y_t does not depend on where t falls in a block.
 template <typename T>
 inline T HSum(typename Vec<T>::type a) {
   constexpr int W = Vec<T>::kWidth;
   T s[W];
   std::memcpy(s, &a, sizeof(a));
-  for (int k = W / 2; k > 0; k /= 2) {
-    for (int i = 0; i < k; ++i) s[i] += s[i + k];
+  for (int k = W; k > 1; k /= 2) {
+    for (int i = 0; i < k / 2; ++i) s[i] = s[2 * i] + s[2 * i + 1];
   }
   return s[0];
 }
 
+#if defined(__AVX__)
+constexpr bool kBlockSums = true;
+
+// acc[k] holds the lane-wise partial sums of step k of a block; returns the vector of their sums.
+inline Vec<float>::type BlockSum(const Vec<float>::type* acc) {
+  __m256 a[8];
+  std::memcpy(a, acc, sizeof(a));
+  const __m256 t0 = _mm256_hadd_ps(_mm256_hadd_ps(a[0], a[1]), _mm256_hadd_ps(a[2], a[3]));
+  const __m256 t1 = _mm256_hadd_ps(_mm256_hadd_ps(a[4], a[5]), _mm256_hadd_ps(a[6], a[7]));
+  const __m256 s = _mm256_add_ps(_mm256_permute2f128_ps(t0, t1, 0x20),
+                                 _mm256_permute2f128_ps(t0, t1, 0x31));
+  return reinterpret_cast<Vec<float>::type>(s);
+}
+inline Vec<double>::type BlockSum(const Vec<double>::type* acc) {
+  __m256d a[4];
+  std::memcpy(a, acc, sizeof(a));
+  const __m256d t0 = _mm256_hadd_pd(a[0], a[1]), t1 = _mm256_hadd_pd(a[2], a[3]);
+  const __m256d s = _mm256_add_pd(_mm256_permute2f128_pd(t0, t1, 0x20),
+                                  _mm256_permute2f128_pd(t0, t1, 0x31));
+  return reinterpret_cast<Vec<double>::type>(s);
+}
+#else
+constexpr bool kBlockSums = false;
+template <typename V>
+inline V BlockSum(const V* acc) {
+  return acc[0];  // not called: without AVX each step is summed on its own
+}
+#endif
+
 // Runs body(b) for b in [0, batch), on up to hardware_concurrency threads when the work is large.
+// Threads take small runs of signals from a shared counter rather than fixed halves, so a core
+// that other processes slow down takes fewer signals instead of holding up the whole call. Each
+// signal is computed the same way on any thread, so results never depend on the split.
 void ParallelFor(int64_t batch, int64_t work_per_item, const std::function<void(int64_t)>& body) {
   int64_t threads = static_cast<int64_t>(std::thread::hardware_concurrency());
   if (const char* env = std::getenv("PIEST_KERNEL_THREADS")) {
@@ -146,15 +218,39 @@ void ParallelFor(int64_t batch, int64_t work_per_item, const std::function<void(
     for (int64_t b = 0; b < batch; ++b) body(b);
     return;
   }
+  const int64_t grain = std::max<int64_t>(1, batch / (8 * threads));
+  std::atomic<int64_t> next{0};
+  auto run = [&]() {
+    for (;;) {
+      const int64_t lo = next.fetch_add(grain);
+      if (lo >= batch) return;
+      const int64_t hi = std::min(batch, lo + grain);
+      for (int64_t b = lo; b < hi; ++b) body(b);
+    }
+  };
   std::vector<std::thread> pool;
   pool.reserve(threads - 1);
-  auto run = [&](int64_t k) {
-    const int64_t lo = batch * k / threads, hi = batch * (k + 1) / threads;
-    for (int64_t b = lo; b < hi; ++b) body(b);
-  };
-  for (int64_t k = 1; k < threads; ++k) pool.emplace_back(run, k);
-  run(0);
+  for (int64_t k = 1; k < threads; ++k) pool.emplace_back(run);
+  run();
   for (auto& th : pool) th.join();
+}
+
+// Asks the kernel to back the 2 MiB-aligned interior of an output buffer with transparent huge
+// pages. Large XLA outputs are fresh anonymous mappings on every call, so writing them is dominated
+// by page faults: one per 4 KiB page (half a million for a (10^6, 32) float32 bank) instead of one
+// per 2 MiB. Where huge pages are off, or the range was already touched, this changes nothing.
+void AdviseHugePages(void* data, int64_t bytes) {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+  constexpr uintptr_t kHuge = uintptr_t{1} << 21;
+  if (bytes < static_cast<int64_t>(2 * kHuge)) return;
+  const uintptr_t begin = reinterpret_cast<uintptr_t>(data);
+  const uintptr_t lo = (begin + kHuge - 1) & ~(kHuge - 1);
+  const uintptr_t hi = (begin + static_cast<uintptr_t>(bytes)) & ~(kHuge - 1);
+  if (hi > lo) madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
+#else
+  (void)data;
+  (void)bytes;
+#endif
 }
 
 // The padded per-signal parameter lanes: padding plays have r = 0, w = 0, x0 = 0, so they track
@@ -201,10 +297,10 @@ inline typename Vec<T>::type Max(typename Vec<T>::type a, typename Vec<T>::type 
 #endif
 }
 
-// Forward over one chunk of NV vectors of plays starting at play j0. r, w and x point at the chunk's
-// padded lanes; x holds the states and is updated. h (row stride n), y and codes (row stride nc)
-// are written when kH, kY, kCodes; y is set by the first chunk and accumulated by the others.
-// What is written is fixed at compile time, so the states stay in registers for the whole signal.
+// Forward over one chunk of NV vectors of plays starting at play j0. r, w and xs point at the
+// chunk's padded lanes; xs holds the states and is updated. h (row stride n), y and codes (row
+// stride nc words) are written when kH, kY, kCodes; y is set by the first chunk and accumulated by
+// the others. What is written is fixed at compile time, so the states stay in registers.
 template <typename T, int NV, bool kH, bool kY, bool kCodes>
 void ForwardChunk(const T* u, int64_t len, const T* r, const T* w, T* xs, int64_t j0, int64_t n,
                   int64_t nc, T* h, T* y, bool first, uint8_t* codes) {
@@ -215,29 +311,38 @@ void ForwardChunk(const T* u, int64_t len, const T* r, const T* w, T* xs, int64_
   std::memcpy(wv, w, sizeof(wv));
   std::memcpy(x, xs, sizeof(x));
   const int64_t nh = std::min<int64_t>(NV * W, n - j0);
-  for (int64_t t = 0; t < len; ++t) {
+  // One step: updates the states, writes h and the codes, returns the lane-wise terms of y_t.
+  auto step = [&](int64_t t) __attribute__((always_inline)) {
     const T ut = u[t];
-    V acc;
+    V acc = {};
     for (int v = 0; v < NV; ++v) {
       const V lo = ut - rv[v], hi = ut + rv[v];
-      const V m = Min<T>(hi, x[v]);
-      if constexpr (kCodes) {
-        const uint8_t lower = ToBits<T>(lo > m);
-        codes[t * nc + 2 * v] = ToBits<T>(hi < x[v]) | lower;
-        codes[t * nc + 2 * v + 1] = lower;
-      }
-      x[v] = Max<T>(lo, m);
+      const V next = Max<T>(lo, Min<T>(hi, x[v]));
+      if constexpr (kCodes) codes[t * nc + v] = ToBits<T>(next != x[v]);
+      x[v] = next;
       if constexpr (kY) acc = v == 0 ? wv[0] * x[0] : acc + wv[v] * x[v];
       if constexpr (kH) {
-        const V xv = x[v];
-        const int64_t count = std::min<int64_t>(W, nh - v * W);
-        if (count == W) {
-          std::memcpy(h + t * n + v * W, &xv, sizeof(V));
-        } else if (count > 0) {
-          std::memcpy(h + t * n + v * W, &xv, count * sizeof(T));
-        }
+        StoreLanes<T>(h + t * n + v * W, next, std::min<int64_t>(W, nh - v * W));
       }
     }
+    return acc;
+  };
+  int64_t t = 0;
+  if constexpr (kY && kBlockSums) {
+    for (; t + W <= len; t += W) {
+      V acc[W];
+      for (int k = 0; k < W; ++k) acc[k] = step(t + k);
+      V s = BlockSum(acc);
+      if (!first) {
+        V old;
+        std::memcpy(&old, y + t, sizeof(V));
+        s = old + s;
+      }
+      std::memcpy(y + t, &s, sizeof(V));
+    }
+  }
+  for (; t < len; ++t) {
+    const V acc = step(t);
     if constexpr (kY) {
       const T s = HSum<T>(acc);
       y[t] = first ? s : y[t] + s;
@@ -255,7 +360,7 @@ void ForwardChunks(const T* u, int64_t len, Lanes<T>& p, int64_t n, T* h, T* y, 
     const int nv = static_cast<int>(std::min<int64_t>(kChunk, (np - j0) / W));
     const bool first = j0 == 0;
     T* hh = kH ? h + j0 : nullptr;
-    uint8_t* cc = kCodes ? codes + 2 * (j0 / W) : nullptr;
+    uint8_t* cc = kCodes ? codes + j0 / W : nullptr;
     const T *r = p.r.data() + j0, *w = p.w.data() + j0;
     T* x = p.x.data() + j0;
 #define PIEST_FWD(NV) \
@@ -264,7 +369,11 @@ void ForwardChunks(const T* u, int64_t len, Lanes<T>& p, int64_t n, T* h, T* y, 
       case 1: PIEST_FWD(1); break;
       case 2: PIEST_FWD(2); break;
       case 3: PIEST_FWD(3); break;
-      default: PIEST_FWD(4); break;
+      case 4: PIEST_FWD(4); break;
+      case 5: PIEST_FWD(5); break;
+      case 6: PIEST_FWD(6); break;
+      case 7: PIEST_FWD(7); break;
+      default: PIEST_FWD(8); break;
     }
 #undef PIEST_FWD
   }
@@ -295,25 +404,32 @@ void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0,
                    T* dr, T* dx0, T* dw) {
   using V = typename Vec<T>::type;
   using M = typename Vec<T>::mask;
+  using L = typename Vec<T>::lane;
   constexpr int W = Vec<T>::kWidth;
+  const M sign = M{} + static_cast<L>(L(1) << (8 * sizeof(L) - 1));
   V wv[NV], nu[NV] = {}, sa[NV] = {}, su[NV] = {};
   std::memcpy(wv, w, sizeof(wv));
+  // At t = 0 the bound that moved a state depends on x0 (lane by lane): the lower one unless
+  // u_0 + r < x0, the same comparison as in the forward pass.
+  M lower0[NV];
+  for (int v = 0; v < NV; ++v) {
+    V rv, xv;
+    std::memcpy(&rv, r + v * W, sizeof(V));
+    std::memcpy(&xv, x0 + v * W, sizeof(V));
+    lower0[v] = ~((u[0] + rv) < xv) & sign;
+  }
   const int64_t nh = std::min<int64_t>(NV * W, n - j0);
-  for (int64_t t = len - 1; t >= 0; --t) {
+  // One step back in time; returns the lane-wise terms of du_t. For t >= 1, `flip` is the sign bit
+  // in every lane when the lower bound is the one that moved the states that moved, else zero.
+  auto step = [&](int64_t t, M flip, auto at_zero) __attribute__((always_inline)) {
     const T ut = u[t];
-    V acc;
+    V acc = {};
     for (int v = 0; v < NV; ++v) {
-      const M moved = FromBits<T>(codes[t * nc + 2 * v]);
-      const M lower_sign = FromBits<T, true>(codes[t * nc + 2 * v + 1]);
+      const M moved = FromBits<T>(codes[t * nc + v]);
       if constexpr (kBank) {
         // Padding lanes get a zero cotangent, so they never contribute.
         V gv = {};
-        const int64_t count = std::min<int64_t>(W, nh - v * W);
-        if (count == W) {
-          std::memcpy(&gv, g + t * n + v * W, sizeof(V));
-        } else if (count > 0) {
-          std::memcpy(&gv, g + t * n + v * W, count * sizeof(T));
-        }
+        LoadLanes<T>(gv, g + t * n + v * W, std::min<int64_t>(W, nh - v * W));
         nu[v] += gv;
       } else {
         nu[v] += g[t];
@@ -329,12 +445,40 @@ void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0,
         su[v] += a * ut;
       }
       // d x / d r is +1 on the upper bound and -1 on the lower one: flip the sign there.
-      sa[v] += reinterpret_cast<V>(a_bits ^ lower_sign);
+      if constexpr (decltype(at_zero)::value) {
+        sa[v] += reinterpret_cast<V>(a_bits ^ lower0[v]);
+      } else {
+        sa[v] += reinterpret_cast<V>(a_bits ^ flip);
+      }
       nu[v] = reinterpret_cast<V>(nu_bits & ~moved);
     }
-    const T d = HSum<T>(acc);
-    du[t] = first ? d : du[t] + d;
+    return acc;
+  };
+  // For t >= 1 the bound that moved a state is the lower one exactly when the input rose (see
+  // CodeBytes), the same for every play.
+  auto step_on = [&](int64_t t) __attribute__((always_inline)) {
+    // A vector compare, not a scalar one: the direction of a random input would defeat a branch.
+    const M rising = (V{} + u[t]) > (V{} + u[t - 1]);
+    return step(t, rising & sign, std::false_type{});
+  };
+  auto put = [&](int64_t t, T d) { du[t] = first ? d : du[t] + d; };
+  // Steps len-1 down to 1: the top (len - 1) % W one at a time, then blocks of W; then t = 0.
+  const int64_t blocked = kBlockSums ? (len - 1) / W * W : 0;
+  for (int64_t t = len - 1; t > blocked; --t) put(t, HSum<T>(step_on(t)));
+  if constexpr (kBlockSums) {
+    for (int64_t t = blocked - W + 1; t >= 1; t -= W) {
+      V acc[W];
+      for (int k = W - 1; k >= 0; --k) acc[k] = step_on(t + k);
+      V s = BlockSum(acc);
+      if (!first) {
+        V old;
+        std::memcpy(&old, du + t, sizeof(V));
+        s = old + s;
+      }
+      std::memcpy(du + t, &s, sizeof(V));
+    }
   }
+  put(0, HSum<T>(step(0, M{}, std::true_type{})));
   T nus[NV * W], sas[NV * W], sus[NV * W];
   std::memcpy(nus, nu, sizeof(nus));
   std::memcpy(sas, sa, sizeof(sas));
@@ -346,29 +490,24 @@ void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0,
   }
 }
 
-// The fused backward keeps three accumulators per vector (nu, sa, su); chunks of kChunkFusedBwd
-// vectors keep them all in the 16 vector registers of AVX2.
-constexpr int kChunkFusedBwd = 4;
-
 template <typename T, bool kBank>
 void BackwardOne(const T* u, int64_t len, const T* r_in, const T* w_in, const T* x0_in, int64_t n,
                  const uint8_t* codes, const T* g, T* du, T* dr, T* dx0, T* dw) {
   constexpr int W = Vec<T>::kWidth;
-  constexpr int kC = kBank ? kChunk : kChunkFusedBwd;
-  const int64_t np = Padded(n);
+  const int64_t np = Padded<T>(n);
   const int64_t nc = CodeBytes<T>(np);
   Lanes<T> p(r_in, w_in, x0_in, n, np);
   if constexpr (kBank) std::fill(p.w.begin(), p.w.begin() + n, T(1));
-  for (int64_t j0 = 0; j0 < np; j0 += kC * W) {
-    const int nv = static_cast<int>(std::min<int64_t>(kC, (np - j0) / W));
+  for (int64_t j0 = 0; j0 < np; j0 += kChunkBwd * W) {
+    const int nv = static_cast<int>(std::min<int64_t>(kChunkBwd, (np - j0) / W));
     const bool first = j0 == 0;
     const T *r = p.r.data() + j0, *w = p.w.data() + j0, *x0 = p.x.data() + j0;
-    const uint8_t* cc = codes + 2 * (j0 / W);
+    const uint8_t* cc = codes + j0 / W;
     const T* gg = kBank ? g + j0 : g;
     T* dww = kBank ? nullptr : dw + j0;
 #define PIEST_BWD(NV)                                                                        \
-  BackwardChunk<T, (NV <= kC ? NV : kC), kBank>(u, len, r, w, x0, j0, n, nc, cc, gg, du, first, \
-                                                dr + j0, dx0 + j0, dww)
+  BackwardChunk<T, NV, kBank>(u, len, r, w, x0, j0, n, nc, cc, gg, du, first, dr + j0, dx0 + j0, \
+                              dww)
     switch (nv) {
       case 1: PIEST_BWD(1); break;
       case 2: PIEST_BWD(2); break;
@@ -410,7 +549,9 @@ ffi::Error BankFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Res<DT> h, uint8_t* codes) 
   using T = ffi::NativeType<DT>;
   int64_t batch, len, n;
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
-  const int64_t np = Padded(n);
+  const int64_t np = Padded<T>(n);
+  AdviseHugePages(h->typed_data(), h->size_bytes());
+  if (codes != nullptr) AdviseHugePages(codes, batch * len * CodeBytes<T>(np));
   ParallelFor(batch, len * np, [&](int64_t b) {
     Lanes<T> p(r.typed_data() + b * n, nullptr, x0.typed_data() + b * n, n, np);
     ForwardOne<T>(u.typed_data() + b * len, len, p, n, h->typed_data() + b * len * n, nullptr,
@@ -424,7 +565,9 @@ ffi::Error PiFwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Res<DT> y, uint8_t
   using T = ffi::NativeType<DT>;
   int64_t batch, len, n;
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
-  const int64_t np = Padded(n);
+  const int64_t np = Padded<T>(n);
+  AdviseHugePages(y->typed_data(), y->size_bytes());
+  if (codes != nullptr) AdviseHugePages(codes, batch * len * CodeBytes<T>(np));
   ParallelFor(batch, len * np, [&](int64_t b) {
     Lanes<T> p(r.typed_data() + b * n, w.typed_data() + b * n, x0.typed_data() + b * n, n, np);
     ForwardOne<T>(u.typed_data() + b * len, len, p, n, nullptr, y->typed_data() + b * len,
@@ -456,7 +599,8 @@ ffi::Error BankBwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Codes codes, Buf<DT> gh, Re
   using T = ffi::NativeType<DT>;
   int64_t batch, len, n;
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
-  const int64_t np = Padded(n);
+  const int64_t np = Padded<T>(n);
+  AdviseHugePages(du->typed_data(), du->size_bytes());
   ParallelFor(batch, len * np, [&](int64_t b) {
     BackwardOne<T, true>(u.typed_data() + b * len, len, r.typed_data() + b * n, nullptr,
                          x0.typed_data() + b * n, n,
@@ -473,7 +617,8 @@ ffi::Error PiBwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Codes codes, Buf<D
   using T = ffi::NativeType<DT>;
   int64_t batch, len, n;
   if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
-  const int64_t np = Padded(n);
+  const int64_t np = Padded<T>(n);
+  AdviseHugePages(du->typed_data(), du->size_bytes());
   ParallelFor(batch, len * np, [&](int64_t b) {
     BackwardOne<T, false>(u.typed_data() + b * len, len, r.typed_data() + b * n,
                           w.typed_data() + b * n, x0.typed_data() + b * n, n,
@@ -573,7 +718,16 @@ PyObject* Registrations(PyObject*, PyObject*) {
   return out;
 }
 
-PyObject* Lanes_(PyObject*, PyObject*) { return PyLong_FromLongLong(kLanes); }
+// Bytes of branch codes per step for n plays of a dtype of `itemsize` bytes.
+PyObject* CodeBytes_(PyObject*, PyObject* args) {
+  long long n, itemsize;
+  if (!PyArg_ParseTuple(args, "LL", &n, &itemsize)) return nullptr;
+  if (n < 1 || (itemsize != 4 && itemsize != 8)) {
+    PyErr_SetString(PyExc_ValueError, "code_bytes needs n >= 1 and an itemsize of 4 or 8");
+    return nullptr;
+  }
+  return PyLong_FromLongLong(itemsize == 4 ? CodeBytes<float>(Padded<float>(n)) : CodeBytes<double>(Padded<double>(n)));
+}
 
 // The instruction-set extensions the kernels were compiled for (/proc/cpuinfo names), so that a
 // binary moved to a CPU without them is refused before any kernel runs.
@@ -589,7 +743,7 @@ PyObject* Isa(PyObject*, PyObject*) {
 
 PyMethodDef kMethods[] = {
     {"registrations", Registrations, METH_NOARGS, "FFI handler capsules by target name."},
-    {"lanes", Lanes_, METH_NOARGS, "The padding width of the play lanes."},
+    {"code_bytes", CodeBytes_, METH_VARARGS, "Bytes of branch codes per step: (n, itemsize)."},
     {"isa", Isa, METH_NOARGS, "The instruction-set extensions the kernels need."},
     {nullptr, nullptr, 0, nullptr},
 };
