@@ -21,12 +21,12 @@ def run():
     rec, truth = _hidden.generate(("creep",), key=jax.random.PRNGKey(0), n_samples=10_000)
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "rec.csv"
-        p.write_text("t,u,y\n" + "\n".join(f"{a!r},{b!r},{c!r}" for a, b, c in zip(rec.t, rec.u, rec.y)))
+        p.write_text("t,u,y\n" + "\n".join(f"{a:.17g},{b:.17g},{c:.17g}" for a, b, c in zip(rec.t, rec.u, rec.y)))
         t0 = time.perf_counter()
         rc = main(["diagnose", str(p), "--out", str(Path(d) / "out"), "--json"])
         secs = time.perf_counter() - t0
         rep = json.loads((Path(d) / "out" / "report.json").read_text())
-    res = dict(n_samples=10_000, seconds=secs, rc=rc, cpus=os.cpu_count(), effects=rep["effects"],
+    res = dict(n_samples=10_000, seconds=secs, rc=rc, cpus=os.cpu_count(), load_average=os.getloadavg(), effects=rep["effects"],
                hidden=truth["effects"], note="one process, compilation included")
     out = Path(__file__).parent / "results" / "bench_diagnose.json"
     out.parent.mkdir(parents=True, exist_ok=True)

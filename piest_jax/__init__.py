@@ -10,10 +10,12 @@ from ._certificate import Certificate as Certificate
 from ._certificate import convergence_certificate as convergence_certificate
 from ._certificate import information_form as information_form
 from ._certificate import noise_covariance as noise_covariance
+from ._diagnose import diagnose as diagnose
 from ._estimators import AbstractEstimator as AbstractEstimator
 from ._estimators import Estimation as Estimation
 from ._estimators import estimate as estimate
 from ._gradient import NormalisedGradient as NormalisedGradient
+from ._hidden import generate as hidden_effect_record
 from ._excitation import IndependenceCheck as IndependenceCheck
 from ._excitation import assumption1_ratio as assumption1_ratio
 from ._excitation import excited_plays as excited_plays

@@ -44,6 +44,7 @@ THRESHOLDS = np.arange(N_PLAYS) / N_PLAYS
 N_CREEP = 5  # creep modes, log-spaced from a third of the input's period to the record's length
 N_DRIFT = 6
 N_POLY = 4  # output polynomial terms v^2 .. v^5
+POLY_RANGE = 1.5
 RIDGE = 1e-6
 # Parameters each effect adds: its linear coefficients plus its grid parameters.
 N_PARAMS = {
@@ -188,28 +189,34 @@ def linear_part(p: Prepared, cfg, play_cols=None):
 
 def _poly(v, norm):
     """Output polynomial columns [vc^2 .. vc^(N_POLY+1)] and their derivatives in v."""
-    vc = (v - norm[0]) / norm[1]
+    # Well beyond the range of the first fit, the polynomial is held (the model continues
+    # linearly): a polynomial extrapolated far past the data diverges.
+    raw = (v - norm[0]) / norm[1]
+    vc = np.clip(raw, -POLY_RANGE, POLY_RANGE)
     pw = [np.ones_like(vc), vc]
     for _ in range(N_POLY):
         pw.append(pw[-1] * vc)
     cols = np.column_stack(pw[2:])
     der = np.column_stack([k * pw[k - 1] for k in range(2, 2 + N_POLY)]) / norm[1]
-    return cols, der
+    return cols, der * (np.abs(raw) < POLY_RANGE)[:, None]
 
 
-def output_terms(p: Prepared, cfg, v, norm):
+def output_terms(p: Prepared, cfg, v, norm, drive=None):
     """The columns driven by the hysteresis output v (asymmetry, creep) and by time (drift).
 
     `norm` = (centre, half-range) scales v for the output polynomial; it is fixed by the fit on
-    the identification record, so that a validation record sees the same polynomial.
+    the identification record, so that a validation record sees the same polynomial. `drive`
+    is what creep follows (default v): the output after the polynomial, when there is one, since
+    creep is a slow yield of the displacement itself.
     """
+    drive = v if drive is None else drive
     cols = []
     if "asymmetry" in cfg:
         cols += list(_poly(v, norm)[0].T)
     if "creep" in cfg:
         taus = np.asarray(cfg["creep"])
-        lp = lowpass(v, np.exp(-p.dt / taus))
-        cols += list((lp - v[:, None]).T)
+        lp = lowpass(drive, np.exp(-p.dt / taus))
+        cols += list((lp - drive[:, None]).T)
     if "offset_drift" in cfg:
         cols += [np.cos(k * np.pi * p.s) for k in range(1, N_DRIFT + 1)]
     return np.column_stack(cols) if cols else np.zeros((len(v), 0))
@@ -270,7 +277,7 @@ class Fit(NamedTuple):
 
     `A` (T, q) is the design at the solution and `target` (T,) what `A @ w` fits: the data,
     plus, with an output polynomial, the offset of its linearisation (Gauss-Newton). `w_v` are
-    the weights of the linear part that built the creep columns and the linearisation, `norm`
+    the previous coefficients, which built the creep columns and the linearisation, `norm`
     the (centre, half-range) of the hysteresis output that scales the polynomial.
     """
 
@@ -305,17 +312,33 @@ def fit(p: Prepared, cfg, *, X=None) -> Fit:
         iters = 5 if asym else 2 if "creep" in cfg else 1
         n_out = (N_POLY if asym else 0) + len(cfg.get("creep", ())) + ("offset_drift" in cfg) * N_DRIFT
         pos = positive_mask(cfg, px + n_out)
+        best = None
         for i in range(iters):
-            w_v = w[:px]
-            v0 = X @ w_v
-            T = output_terms(p, cfg, v0, norm)
+            w_v = w
+            v0 = X @ w_v[:px]
+            T = output_terms(p, cfg, v0, norm, _drive(cfg, v0, w_v, norm))
             Xs, target = X, p.y
             if asym and i > 0:
                 g = _poly(v0, norm)[1] @ w[px : px + N_POLY]
                 Xs, target = (1 + g)[:, None] * X, p.y + g * v0
             A = np.column_stack([Xs, T])
             w = _lstsq(A, target, pos)
+            if asym:
+                # Gauss-Newton without a line search can overshoot: keep the best model seen.
+                sse = float(np.sum((_predict(X, p, cfg, w, w_v, norm) - p.y) ** 2))
+                if best is not None and sse >= best[0]:
+                    break
+                best = (sse, Fit(A, target, w, w_v, norm))
+        if best is not None:
+            return best[1]
     return Fit(A, target, w, w_v, norm)
+
+
+def _drive(cfg, v0, w_v, norm):
+    """The creep's drive from the previous coefficients: v0 plus its output polynomial."""
+    if "asymmetry" in cfg and len(w_v) > N_PLAYS + 1:
+        return v0 + _poly(v0, norm)[0] @ w_v[N_PLAYS + 1 : N_PLAYS + 1 + N_POLY]
+    return v0
 
 
 def predict(p: Prepared, cfg, w, w_v, norm):
@@ -324,10 +347,14 @@ def predict(p: Prepared, cfg, w, w_v, norm):
     The model itself, y = v + P(v) a + creep(X w_v) c + drift d with v = X w, not its
     linearisation.
     """
-    X = linear_part(p, cfg)
+    return _predict(linear_part(p, cfg), p, cfg, w, w_v, norm)
+
+
+def _predict(X, p, cfg, w, w_v, norm):
     px = X.shape[1]
     v = X @ w[:px]
-    T = output_terms(p, cfg, X @ w_v, norm)
+    v0 = X @ w_v[:px]
+    T = output_terms(p, cfg, v0, norm, _drive(cfg, v0, w_v, norm))
     if "asymmetry" in cfg:
         T[:, :N_POLY] = _poly(v, norm)[0]
     return v + T @ w[px:]
@@ -383,7 +410,7 @@ def grid(effect, p: Prepared):
         return [0.0, -0.4, -0.2, 0.2, 0.4]
     if effect == "creep":
         duration = p.t[-1] - p.t[0]
-        return [tuple(np.geomspace(min(0.3 * p.period, duration / 10), duration, N_CREEP))]
+        return [tuple(np.geomspace(min(0.1 * p.period, duration / 10), duration, N_CREEP))]
     return [True]
 
 

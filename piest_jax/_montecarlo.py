@@ -257,12 +257,15 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
     # checks of `play` (their runtime error branches do not mix with shard_map).
     H = _bank(u, r, x0, s.play_method)
     stats = _window_stats(H, u, s.window, s.stride, numerical_tolerance(dtype), _atol(u, r))
-    eig = jnp.linalg.eigvalsh(stats.gram)
-    lam_min, lam_max = eig[:, 0], eig[:, -1]
     Hr = H[: s.rls_samples]
     c = (s.dt / (1 + jnp.sum(Hr * Hr, axis=1)) ** 2).astype(dtype)
     A = (Hr * c[:, None]).T @ Hr
-    lam, V = jnp.linalg.eigh(0.5 * (A + A.T))
+    # One eigensolver call for the window Grams and the RLS information matrix together: the
+    # batched solver waits on helpers it queues in XLA:CPU's intra-op pool, so two solver calls
+    # scheduled side by side can hold every pool thread and wait forever.
+    lam_all, V_all = jnp.linalg.eigh(jnp.concatenate([stats.gram, (0.5 * (A + A.T))[None]]))
+    eig, lam, V = lam_all[:-1], lam_all[-1], V_all[-1]
+    lam_min, lam_max = eig[:, 0], eig[:, -1]
     err = V @ ((V.T @ w) / (1 + s.P0 * jnp.maximum(lam, 0.0)))
     return dict(
         rho=jnp.min(stats.urange) / (2 * r[-1]),

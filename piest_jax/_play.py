@@ -71,7 +71,7 @@ def _associative(u: Array, r: Array, x0: Array) -> Array:
 
 
 def _uses_kernel(method: str) -> bool:
-    """Whether `method` runs the compiled kernel here (which checks its input for NaN/inf itself)."""
+    """Whether `method` runs the compiled kernel here (it checks its input for NaN/inf itself)."""
     if method not in ("kernel", "auto"):
         return False
     from . import _kernel

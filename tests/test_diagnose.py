@@ -76,8 +76,8 @@ def test_generator_is_reproducible_and_checks_names():
 # The bars: the right effect named in >= 90 % of single-effect records, no effect in >= 90 %
 # of effect-free ones, the final RMSE within 1.5x the noise when the right effect is named, and
 # both names for two-effect records. experiments/diagnose_confusion.py runs many more records.
-PER_EFFECT = 5
-N_FREE = 10
+PER_EFFECT = 4
+N_FREE = 8
 PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", "asymmetry"),
          ("initial_state", "rate_dependence"), ("rate_dependence", "offset_drift")]
 PER_PAIR = 2

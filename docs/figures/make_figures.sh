@@ -23,7 +23,5 @@ cp "$work/pe-map/pe_map.png" montecarlo_pe_map.png
 cp "$work/fitted/validation.png" fit_validation.png
 cp "$work/ff/compensate.png" compensate.png
 cp "$work/diag/report.png" diagnose.png
-cp "$work/fitted/fit.json" fit_aye.json
-cp "$work/diag/report.json" diagnose_aye.json
-chmod 644 ./*.png ./*.json
+chmod 644 ./*.png
 ls -l ./*.png

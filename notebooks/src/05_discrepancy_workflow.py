@@ -32,9 +32,9 @@ jax.config.update("jax_enable_x64", True)
 import matplotlib.pyplot as plt
 import numpy as np
 
+import piest_jax as pj
 from piest_jax._data import builtin_path, load_record
-from piest_jax._diagnose import diagnose, noise_std
-from piest_jax._hidden import generate
+from piest_jax._diagnose import noise_std
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 # The full search tries every effect; the small run (for the test suite) tries two.
@@ -43,16 +43,17 @@ SEARCH = dict(max_effects=1, candidates=("delay", "linear_dynamics")) if SMALL e
 # %% [markdown]
 # ## 1. A hidden effect, found and named
 #
-# `generate` draws a synthetic record: a random PI operator, a hidden effect in a physical form
-# *different from* the one the diagnosis fits (here the input reaches the actuator late, by
-# interpolation), and white plus quantisation noise. The diagnosis does not see the truth.
+# `pj.hidden_effect_record` draws a synthetic record: a random PI operator, a hidden effect in a
+# physical form *different from* the one the diagnosis fits (here the input reaches the actuator
+# late, by interpolation), and white plus quantisation noise. The diagnosis does not see the
+# truth.
 
 # %%
-rec, truth = generate(("delay",), key=jax.random.key(1), n_samples=800)
+rec, truth = pj.hidden_effect_record(("delay",), key=jax.random.key(1), n_samples=800)
 print("hidden:", truth["forms"], f"| true noise std {truth['noise_std']:.4f}")
 print(f"noise floor estimated from the data: {noise_std(rec.y):.4f}")
 
-report = diagnose(rec, **SEARCH)
+report = pj.diagnose(rec, **SEARCH)
 print("named:", report["effects"])
 print(f"RMSE plain PI {report['baseline_rmse']:.4f} -> with named effects {report['final_rmse']:.4f}")
 
@@ -105,7 +106,7 @@ ident = load_record(builtin_path("piezo_aye2018_identification.csv"))
 valid = load_record(builtin_path("piezo_aye2018_validation.csv"))
 if SMALL:
     ident, valid = ident.slice(0, 1000), valid.slice(0, 1000)
-real = diagnose(ident, valid, **SEARCH)
+real = pj.diagnose(ident, valid, **SEARCH)
 v = real["validation"]
 print("named:", real["effects"])
 print(f"noise floor {real['noise_std_estimate']:.3f} (sensor units)")

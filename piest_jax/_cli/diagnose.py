@@ -87,6 +87,8 @@ def _markdown(rep):
     if "validation" in rep:
         v = rep["validation"]
         lines.append(f"| RMSE, validation record | {v['baseline_rmse']:.4g} | {v['final_rmse']:.4g} |")
+        lines.append(f"| RMSE, validation record, mean residual removed | "
+                     f"{v['baseline_rmse_offset_removed']:.4g} | {v['final_rmse_offset_removed']:.4g} |")
     for e, par in rep.get("parameters", {}).items():
         if par:
             lines.append(f"- `{e}`: " + ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"

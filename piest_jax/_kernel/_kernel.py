@@ -35,6 +35,7 @@ from jaxtyping import Array
 
 from .. import _checks
 
+
 def _missing_isa(required) -> list[str]:
     """The instruction-set extensions in `required` that this CPU lacks (Linux; else none)."""
     try:
@@ -89,7 +90,8 @@ def _warn_fallback() -> None:
     # functools.cache makes this fire once per process.
     warnings.warn(
         f"piest_jax: the compiled play kernel is not available ({_IMPORT_ERROR}); the play bank "
-        "falls back to the pure-JAX scan. Reinstall with a C++ compiler present (and PIEST_KERNEL_BUILD unset) to build it.",
+        "falls back to the pure-JAX scan. Reinstall with a C++ compiler present (and "
+        "PIEST_KERNEL_BUILD unset) to build it.",
         RuntimeWarning,
         stacklevel=4,
     )
@@ -187,7 +189,8 @@ def bank(u: Array, r: Array, x0: Array) -> Array:
     """The play outputs H (T, n) for input `u` (T,), thresholds `r` (n,) and states `x0` (n,).
 
     All three must share one float dtype (float32 or float64); anything else raises `ValueError`,
-    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`,
+    `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
     respect to all three arguments.
 
     **Arguments:**
@@ -228,7 +231,8 @@ def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
     """The fused PI output y_t = Σ_j w_j H_{r_j}[u](t), without materialising H.
 
     All four must share one float dtype (float32 or float64); anything else raises `ValueError`,
-    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`, `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`,
+    `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
     respect to all four arguments.
 
     **Arguments:**
@@ -252,7 +256,8 @@ def _pi(u, r, x0, w):
 
 
 def _pi_fwd(u, r, x0, w):
-    shapes = (_sds(u.shape, u.dtype), _sds((u.shape[0], _code_bytes(r.shape[0], u.dtype)), jnp.uint8))
+    codes = _sds((u.shape[0], _code_bytes(r.shape[0], u.dtype)), jnp.uint8)
+    shapes = (_sds(u.shape, u.dtype), codes)
     y, codes = _call("pi_fwd_res", u, shapes, u, r, x0, w)
     return y, (u, r, x0, w, codes)
 
