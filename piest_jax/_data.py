@@ -62,24 +62,24 @@ def _fail(source, msg, row=None):
     raise DataError(f"{where}: {msg}")
 
 
-def _find_header(lines, source, required=("t", "u", "y")):
+def _header_candidates(lines):
+    """Each non-blank, non-comment line near the top, split on its most frequent delimiter."""
     for i, line in enumerate(lines[:_HEADER_SEARCH_LINES]):
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
         delim = max(_DELIMITERS, key=stripped.count)
-        names = [c.strip().strip('"').strip("'").lower() for c in stripped.split(delim)]
+        yield i, delim, [c.strip().strip('"').strip("'").lower() for c in stripped.split(delim)]
+
+
+def _find_header(lines, source, required=("t", "u", "y")):
+    for i, delim, names in _header_candidates(lines):
         if set(required) <= set(names):
             return i, delim, names
     first = next((ln.strip() for ln in lines if ln.strip()), None)
     if first is None:
         _fail(source, "the file is empty")
-    for i, line in enumerate(lines[:_HEADER_SEARCH_LINES]):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        delim = max(_DELIMITERS, key=stripped.count)
-        names = [c.strip().strip('"').strip("'").lower() for c in stripped.split(delim)]
+    for i, delim, names in _header_candidates(lines):
         # A row of names (not numbers) that lacks some of t, u, y is a header missing columns.
         if not any(_is_number(c) for c in names) and set(required) & set(names):
             missing = [c for c in required if c not in names]
