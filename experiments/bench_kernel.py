@@ -25,7 +25,7 @@ steadier measure of work, and the backward/forward ratios are given in both. Thr
 samples x plays per second of wall time.
 
 Run: python experiments/bench_kernel.py [--out experiments/results/bench_kernel.json]
-[--rounds 15] [--quick]. Writes one JSON file and prints a Markdown table and the target ratios.
+[--rounds 30] [--quick]. Writes one JSON file and prints a Markdown table and the target ratios.
 """
 
 import argparse
@@ -179,7 +179,7 @@ def _time_rows(rows, rounds, slow_s=1.0, slow_rounds=3):
     return wall, cpu
 
 
-def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=15, seed=0):
+def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
     """Time every row on both cases.
 
     **Arguments:** `t_single`, the long signal's length; `batch`, (B, T) of the batch case;
@@ -305,7 +305,7 @@ def markdown_table(results) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="experiments/results/bench_kernel.json")
-    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--rounds", type=int, default=30)
     ap.add_argument("--quick", action="store_true", help="small sizes, a smoke test")
     args = ap.parse_args(argv)
     sizes = {"t_single": 10**5, "batch": (32, 2 * 10**3)} if args.quick else {}

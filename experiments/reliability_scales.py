@@ -2,8 +2,8 @@
 
 1. Every estimator (ForgettingRLS, ContinuousRLS, NormalisedGradient) on a three-play record with
    u and y in units from 1e-6 to 1e6 (nine pairs, one vmapped call each): are the weights finite,
-   and how far are they from the truth in the user's units, used as they are and after dividing
-   u and y by their half ranges (the normalisation `fit_pi` and `diagnose` apply internally)?
+   and how far are they from the truth in the user's units, used as they are and with
+   `estimate(..., rescale=True)` (H and y divided by their peaks, results in the user's units)?
 2. `fit_pi` (thresholds, weights, offset) at the same scales: error in the user's units.
 3. A 10⁶-sample record with u ~ 1e6 and y ~ 1e-6: CSV loading, the operator, two estimators;
    time, peak memory and the weight error.
@@ -53,9 +53,6 @@ def run(precision: str) -> dict:
     ys = jnp.asarray(np.stack([y * sy for _, sy in pairs]), dtype)
     to_user = np.array([[su / sy] for su, sy in pairs])
 
-    def half(x, axes):
-        return 0.5 * (jnp.max(x, axis=axes) - jnp.min(x, axis=axes))
-
     estimators = {
         "ForgettingRLS(P0=1e6)": pj.ForgettingRLS(1e6, 1.0),
         "ContinuousRLS(P0=1e6)": pj.ContinuousRLS(1e6, DT),
@@ -63,11 +60,11 @@ def run(precision: str) -> dict:
     }
     scales = {}
     for name, est in estimators.items():
-        run_all = jax.jit(jax.vmap(lambda H, y, est=est: pj.estimate(est, H, y).weights[-1]))
-        raw = np.asarray(run_all(Hs, ys), np.float64)
-        uh, yh = half(Hs[:, :, 0], 1), half(ys, 1)
-        normed = np.asarray(run_all(Hs / uh[:, None, None], ys / yh[:, None]), np.float64)
-        normed = normed * np.asarray(yh / uh, np.float64)[:, None]
+        def last(H, y, est=est, rescale=False):
+            return pj.estimate(est, H, y, rescale=rescale).weights[-1]
+
+        raw = np.asarray(jax.jit(jax.vmap(last))(Hs, ys), np.float64)
+        normed = np.asarray(jax.jit(jax.vmap(lambda H, y: last(H, y, rescale=True)))(Hs, ys), np.float64)
         err = lambda w: (np.linalg.norm(w * to_user - W, axis=1) / np.linalg.norm(W)).tolist()  # noqa: E731
         scales[name] = {
             "pairs_su_sy": pairs,
@@ -115,10 +112,11 @@ def run(precision: str) -> dict:
     Hl.block_until_ready()
     long["regressor_s"] = time.perf_counter() - t0
     yl_d = jnp.asarray(rec.y, dtype)
-    for name, est in [("ForgettingRLS(P0=1e-4)", pj.ForgettingRLS(1e-4, 1.0)),
-                      ("NormalisedGradient(1)", pj.NormalisedGradient(1.0))]:
+    for name, est, rescale in [("ForgettingRLS(P0=1e-4)", pj.ForgettingRLS(1e-4, 1.0), False),
+                               ("NormalisedGradient(1)", pj.NormalisedGradient(1.0), False),
+                               ("NormalisedGradient(1), rescale", pj.NormalisedGradient(1.0), True)]:
         t0 = time.perf_counter()
-        e = pj.estimate(est, Hl, yl_d)
+        e = pj.estimate(est, Hl, yl_d, rescale=rescale)
         wl = np.asarray(e.weights[-1], np.float64)
         long[name] = {
             "seconds": time.perf_counter() - t0,

@@ -26,6 +26,17 @@ from ._excitation import windowed_gram as windowed_gram
 from ._excitation import windowed_pe_levels as windowed_pe_levels
 from ._excitation import windowed_range as windowed_range
 from ._inverse import inverse as inverse
+from ._draw_metrics import draw_statistics as draw_statistics
+from ._families import draw_case as draw_case
+from ._map_report import summarise as summarise
+from ._map_settings import MapSettings as MapSettings
+from ._map_settings import make_settings as make_settings
+from ._map_settings import numerical_tolerance as numerical_tolerance
+from ._montecarlo import draw_family as draw_family
+from ._montecarlo import draw_keys as draw_keys
+from ._montecarlo import mesh_sharding as mesh_sharding
+from ._montecarlo import pe_map as pe_map
+from ._window_stats import sharper_condition as sharper_condition
 from ._compensate import Compensation as Compensation
 from ._compensate import admissible_states as admissible_states
 from ._compensate import evaluate_compensation as evaluate_compensation

@@ -8,23 +8,28 @@ its held-out gain, less a charge per parameter, is large against the noise floor
 of the remaining error; then the loop repeats on what remains, and effects that a later one made
 redundant are dropped again. Long records are sub-sampled for the search; the model's time
 constants and delay are physical, so the chosen model is then fitted and evaluated at full rate.
+Finally the plain and the chosen model are refined jointly, every parameter at once, by optimistix
+least squares (`_refine`), the machinery of `fit_pi`; a refinement is kept only when it lowers the
+full-rate error.
 """
 
-import dataclasses
 import itertools
 import math
 
 import numpy as np
-from scipy import signal as _signal
 
-from . import _effects, _locate
-from ._data import DataError, Record
+from . import _effects, _locate, _refine
+from ._data import Record
 from ._effects import EFFECTS
+from ._progress import progress
+from ._scaling import Scaling as Scaling
+from ._scaling import check_record as check_record
+from ._scaling import noise_std as noise_std
+from ._scaling import prepared as prepared
+from ._scaling import scaling_of as scaling_of
 
-MIN_SAMPLES = 200
 SEARCH_SAMPLES = 2048
-N_BLOCKS = 64
-N_FOLDS = 4
+REFINE_SAMPLES = 10_000
 # Naming thresholds: the held-out MSE gain, less PARAM_PENALTY sigma^2 per parameter per sample,
 # must exceed MIN_GAIN_NOISE sigma^2 and MIN_GAIN_REL of the current held-out MSE. A gain below
 # about sigma^2 is what an imperfect form of the first effect leaves for a second one to pick up,
@@ -36,123 +41,6 @@ MAX_EFFECTS = 3
 # A first effect that leaves a held-out RMSE above STUCK_NOISE x the noise, with no single
 # addition significant, is retried as pairs (`_pair_restart`).
 STUCK_NOISE = 2.0
-
-
-def noise_std(y) -> float:
-    """The noise floor: a robust std of the residual of a local cubic fit over 7 samples.
-
-    The local cubic (Savitzky-Golay) follows the signal, loops and reversals included, so the
-    residual is noise: for white noise of std sigma its variance is sigma^2 (1 - h0), with h0 the
-    smoother's central weight; the median absolute deviation ignores the few samples at kinks.
-
-    **Arguments:** `y`, a sampled signal (T,).
-
-    **Returns:** the estimated noise std.
-    """
-    y = np.asarray(y, float)
-    r = y - _signal.savgol_filter(y, 7, 3, mode="interp")
-    h0 = _signal.savgol_coeffs(7, 3)[3]
-    mad = np.median(np.abs(r - np.median(r)))
-    return float(1.4826 * mad / np.sqrt(1 - h0))
-
-
-@dataclasses.dataclass(frozen=True)
-class Scaling:
-    """The normalisation of one identification record, reused for validation records."""
-
-    u_mid: float
-    u_half: float
-    y_mid: float
-    y_half: float
-    rate_scale: float
-    omega_ref: float
-    period: float
-    delay_unit: float
-
-
-def check_record(rec: Record) -> None:
-    """Refuse records the diagnosis cannot use, with a message naming the problem.
-
-    **Arguments:** `rec`, a `Record`.
-
-    **Returns:** nothing; raises `DataError` for too few samples, NaN/inf, an input with no
-    excitation or a constant output.
-    """
-    src = rec.source
-    if rec.n_samples < MIN_SAMPLES:
-        raise DataError(f"{src}: too short: {rec.n_samples} samples, the diagnosis needs {MIN_SAMPLES}")
-    for name, col in (("t", rec.t), ("u", rec.u), ("y", rec.y)):
-        bad = ~np.isfinite(col)
-        if bad.any():
-            raise DataError(
-                f"{src}: column `{name}` has {int(bad.sum())} NaN/inf values "
-                f"(first at row {int(np.argmax(bad))}); remove or fill them"
-            )
-    if not np.all(np.diff(rec.t) > 0):
-        raise DataError(f"{src}: time stamps are not strictly increasing")
-    du = np.ptp(rec.u)
-    if du <= 1e-9 * np.max(np.abs(rec.u)):
-        raise DataError(f"{src}: no excitation: the input u is constant, nothing can be identified")
-    un = (rec.u - rec.u.min()) / du
-    if _reversals(un) < 2:
-        raise DataError(
-            f"{src}: no excitation: the input never reverses direction, so no hysteresis loop "
-            "is traced; record at least one rise and fall"
-        )
-    if np.ptp(rec.y) <= 1e-9 * np.max(np.abs(rec.y)):
-        raise DataError(f"{src}: constant output: y does not change, there is nothing to model")
-
-
-def _reversals(un, frac=0.05):
-    """Direction changes of a signal in [0, 1] larger than `frac` (a hysteresis counter)."""
-    count, ext, direction = 0, un[0], 0
-    for v in un[:: max(1, len(un) // 20000)]:
-        if direction == 0:
-            if abs(v - ext) > frac:
-                direction, ext = (1 if v > ext else -1), v
-        elif direction * (v - ext) > 0:
-            ext = v
-        elif direction * (ext - v) > frac:
-            count, direction, ext = count + 1, -direction, v
-    return count
-
-
-def scaling_of(rec: Record) -> Scaling:
-    """The normalisation constants of an identification record.
-
-    **Arguments:** `rec`, the record.
-
-    **Returns:** a `Scaling`.
-    """
-    u_mid, u_half = 0.5 * (rec.u.max() + rec.u.min()), 0.5 * np.ptp(rec.u)
-    y_mid, y_half = 0.5 * (rec.y.max() + rec.y.min()), 0.5 * np.ptp(rec.y)
-    rate = np.abs(np.gradient((rec.u - u_mid) / u_half, rec.t))
-    rate_scale = float(np.percentile(rate, 90)) or float(rate.max())
-    duration = float(rec.t[-1] - rec.t[0])
-    f_dom = max(_reversals((rec.u - rec.u.min()) / np.ptp(rec.u)) / 2, 1.0) / duration
-    return Scaling(
-        float(u_mid), float(u_half), float(y_mid), float(y_half), rate_scale,
-        float(2 * np.pi * 10 * f_dom), float(1 / f_dom), rec.dt,
-    )
-
-
-def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) -> _effects.Prepared:
-    """A record in the identification record's normalised units, optionally sub-sampled.
-
-    **Arguments:** `rec`; `sc`, the identification record's `Scaling`; `step`, keep every
-    `step`-th sample; `folds`, assign the samples to interleaved cross-validation folds of
-    contiguous blocks.
-
-    **Returns:** an `_effects.Prepared`.
-    """
-    u = ((rec.u - sc.u_mid) / sc.u_half)[::step]
-    y = ((rec.y - sc.y_mid) / sc.y_half)[::step]
-    t = rec.t[::step]
-    f = None
-    if folds:
-        blocks = np.minimum((np.arange(len(u)) * N_BLOCKS) // len(u), N_BLOCKS - 1)
-        f = blocks % N_FOLDS
-    return _effects.Prepared(u, y, t, sc.rate_scale, sc.period, f)
 
 
 def _fit_many(p, cfg, effect, values):
@@ -274,7 +162,8 @@ def _prune(p, cfg, named, sigma2):
     return cfg, named, pruned
 
 
-def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, refit: bool = True):
+def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, refit: bool = True,
+           solver: str | None = "lm", quiet: bool = True):
     """Run the naming loop on one identification record.
 
     **Arguments:**
@@ -283,15 +172,20 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     - `max_effects`: stop after naming this many.
     - `candidates`: the effects to consider.
     - `refit`: fit the final weights on the full-rate record (otherwise on the search's samples).
+    - `solver`: refine the base and the final model jointly with this optimistix solver
+      (`_refine.refine`: `"lm"`, `"gn"` or `"bfgs"`), or None to keep the variable-projection fit.
+    - `quiet`: no progress bar (it shows only on a terminal anyway).
 
     **Returns:** a dict with `effects` (named, in order), `pruned`, `rounds` (each candidate's
-    held-out RMSE and score per round), `model_base` and `model_final` (configuration and
-    weights), `scaling`, `noise_std` and the held-out RMSEs (in the data's units).
+    held-out RMSE and score per round), `model_base` and `model_final` (configuration,
+    weights and, with a `solver`, how the refinement went and which fit was kept), `scaling`, `noise_std` and the held-out RMSEs (in the data's units).
     """
     candidates = list(candidates)
     for c in candidates:
         if c not in EFFECTS:
             raise ValueError(f"unknown effect {c!r}; choose from {EFFECTS}")
+    if solver is not None and solver not in _refine.SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {_refine.SOLVERS} or None")
     check_record(rec)
     sc = scaling_of(rec)
     step = int(math.ceil(rec.n_samples / SEARCH_SAMPLES))
@@ -304,9 +198,8 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     base_mse = cur = _cv(p, cfg)
     while len(named) < max_effects:
         scores = {}
-        for c in candidates:
-            if c in named:
-                continue
+        todo = [c for c in candidates if c not in named]
+        for c in progress(todo, desc=f"diagnose, round {len(rounds) + 1}", quiet=quiet):
             mse, q = _fit_many(p, cfg, c, _effects.grid(c, p))
             score, ok = _significant(cur - mse, _effects.N_PARAMS[c], cur, sigma2, n)
             scores[c] = dict(heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score),
@@ -342,15 +235,56 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     cfg = {k: cfg[k] for k in named}
     final_mse = _cv(p, cfg)
     full = prepared(rec, sc) if refit else p
+    # The joint refinement costs a Jacobian per step; on long records it runs on every k-th
+    # sample (the parameters are physical, so the model carries over to the full rate) and is
+    # kept only if it also lowers the error at the full rate.
+    thin = prepared(rec, sc, step=int(math.ceil(len(full.y) / REFINE_SAMPLES))) if refit else p
     models = {}
     for label, c in (("model_base", {}), ("model_final", cfg)):
         f = _effects.fit(full, c)
         models[label] = dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm)
+        if solver is not None:
+            # Both models get the same joint refinement, so the comparison stays fair.
+            models[label] = _refined(full, thin, c, f, solver)
     return dict(
         effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=sigma * sc.y_half,
         step=step, heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
         heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half, **models,
     )
+
+
+def _refined(full, thin, cfg, f, solver):
+    """The best of the grid fit, its joint refinement, and the refined parameters' exact weights.
+
+    The solver moves every parameter at once but, through the positivity transform, slowly
+    moves weights that sit at zero; the variable-projection fit at the refinement's nonlinear
+    parameters gives those weights exactly. All three are judged at the full rate.
+    """
+    def mse(pred):
+        return float(np.mean((pred - full.y) ** 2))
+
+    def vp_model(c, g):
+        return dict(cfg=c, coef=g.w, coef_v=g.w_v, norm=g.norm)
+
+    ref = _refine.refine(thin, cfg, f.w, f.norm, solver=solver)
+    options = [("grid", mse(_effects.predict(full, cfg, f.w, f.w_v, f.norm)), vp_model(cfg, f))]
+    if ref.accepted:
+        refined = dict(vp_model(cfg, f), cfg=ref.cfg, refined=ref)
+        options.append(("solver", mse(_refine.predict(ref, full, f.norm)), refined))
+        if ref.cfg != cfg:
+            g = _effects.fit(full, ref.cfg)
+            pred = _effects.predict(full, ref.cfg, g.w, g.w_v, g.norm)
+            options.append(("solver_then_weights", mse(pred), vp_model(ref.cfg, g)))
+    kept, best, model = min(options, key=lambda o: o[1] if np.isfinite(o[1]) else np.inf)
+    model["refinement"] = dict(result=ref.result, steps=ref.steps, kept=kept,
+                               rmse_start=float(np.sqrt(options[0][1])), rmse=float(np.sqrt(best)))
+    return model
+
+
+def _refinement(model, sc):
+    """How the joint optimistix refinement of a model went (RMSEs in the data's units)."""
+    r = model["refinement"]
+    return dict(r, rmse_start=r["rmse_start"] * sc.y_half, rmse=r["rmse"] * sc.y_half)
 
 
 def _describe(effect, q):
@@ -384,6 +318,11 @@ def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False):
 
     **Returns:** `(prediction, rmse)`.
     """
+    if model.get("refined") is not None:
+        pred = _refine.predict(model["refined"], prepared(rec, sc), model["norm"],
+                               transferable_only=transferable_only)
+        pred = pred * sc.y_half + sc.y_mid
+        return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
     cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
     if transferable_only:
         cfg.pop("initial_state", None)
@@ -401,10 +340,12 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
 
     - `rec`: the identification record.
     - `validation`: an optional second record of the same device, run through both models.
-    - `**kwargs`: passed to `search`.
+    - `**kwargs`: passed to `search` (`max_effects`, `candidates`, `solver`, `quiet`, ...).
 
     **Returns:** a JSON-ready dict with `effects`, `baseline_rmse`, `final_rmse`,
-    `noise_std_estimate`, `candidates`, `rounds`, `where`, `heldout` and, with a validation record,
+    `noise_std_estimate`, `candidates`, `parameters` (of the named effects, after refinement),
+    `refinement` (solver result, steps, RMSE before and after, for both models), `rounds`,
+    `where`, `heldout` and, with a validation record,
     `validation` (`baseline_rmse`, `final_rmse`); arrays for plotting are under `_arrays`.
     """
     s = search(rec, **kwargs)
@@ -418,7 +359,8 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
         final_rmse=rmse_f,
         noise_std_estimate=s["noise_std"],
         candidates={k: dict(v) for k, v in first.items()},
-        parameters={r["best"]: r["parameters"] for r in s["rounds"] if r["best"] in named},
+        parameters={e: _describe(e, s["model_final"]["cfg"][e]) for e in named},
+        refinement={k: _refinement(s[k], sc) for k in ("model_base", "model_final") if "refinement" in s[k]},
         rounds=s["rounds"],
         pruned=s["pruned"],
         heldout=dict(baseline_rmse=s["heldout_rmse_base"], final_rmse=s["heldout_rmse_final"]),

@@ -107,6 +107,8 @@ def estimate(
     H: Regressor,
     y: SignalLike,
     initial_weights: Weights | None = None,
+    *,
+    rescale: bool = False,
 ) -> Estimation:
     """Run an estimator over a record: a thin `lax.scan` of `estimator.step`.
 
@@ -116,6 +118,14 @@ def estimate(
     - `H`: the regressor (T, n), e.g. `PIOperator(r, w).regressor(u)`.
     - `y`: the measured output (T,).
     - `initial_weights`: Ŵ(0), (n,); zeros by default.
+    - `rescale`: estimate on H / a and y / b, with a = max |H| and b = max |y| over the
+      record, and report everything in the user's units (weights × b / a, errors × b, gains
+      / a²). The settings (P0, gains, a trace limit) then refer to data of magnitude one, so the
+      same settings give the same answer, down to rounding, whether u and y are in microvolts or
+      kilovolts. Without it the settings are in the data's units: the normalisation
+      m = 1 + hᵀh of `ContinuousRLS` and `NormalisedGradient` is not scale-free, and a P0 chosen
+      for unit data barely moves the estimate of data at 1e-6. The scales use the whole record
+      (an offline choice); online, fix them from the sensors' ranges.
 
     **Returns:** an [`Estimation`][] with the trajectories.
 
@@ -123,7 +133,20 @@ def estimate(
     `eqx.error_if` runtime error).
     """
     H, y, w0 = _data(estimator, H, y, initial_weights)
-    return _scan(estimator, H, y, w0)
+    if not rescale:
+        return _scan(estimator, H, y, w0)
+    a, b = _peak(H), _peak(y)
+    e = _scan(estimator, H / a, y / b, w0 * (a / b))
+    g = 1 / (a * a)
+    return Estimation(
+        e.weights * (b / a), e.error * b, e.gain_trace * g, e.gain_min_eig * g, e.gain_max_eig * g
+    )
+
+
+def _peak(x: Array) -> Array:
+    # All-zero data (an output that never moves, a play that is never excited) keeps unit scale.
+    m = jnp.max(jnp.abs(x))
+    return jnp.where(m > 0, m, jnp.ones_like(m))
 
 
 # Compiled once per estimator type, static settings and data shape; the settings' values (P0, dt,

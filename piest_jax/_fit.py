@@ -16,7 +16,9 @@ affine-equivariant, H_r[a + b u] = a + b H_{r/b}[u] for b > 0, so the normalised
 user units exactly: r = u_half r', w = (y_half/u_half) w', states x = u_mid + u_half x'.
 
 Starts: the weights of each start are the linear least-squares solution on a grid of thresholds;
-several grids are solved at once by `vmap` and the best final fit is kept.
+several grids are solved at once by `vmap` (in batches on long records, to bound memory) and the
+best final fit is kept. The fit is differentiable with respect to the data in forward and reverse
+mode: optimistix differentiates the solution implicitly at the optimum.
 
 Identifiability (paper Assumption 1): a play whose threshold is at or above half the input's
 peak-to-peak range never traverses its loop, so its threshold is not determined by the data. Such
@@ -35,18 +37,12 @@ from jaxtyping import Array, Bool, Float
 
 from . import _checks
 from ._custom_types import Scalar, Signal, SignalLike, States, Thresholds, Weights
+from ._fit_data import prepare as _prepare
 from ._pi import PIOperator
 from ._play import play_step
 
 Solver = Literal["lm", "gn", "bfgs"]
 SOLVERS = ("lm", "gn", "bfgs")
-
-
-class _Scales(eqx.Module):
-    u_mid: Scalar
-    u_half: Scalar
-    y_mid: Scalar
-    y_half: Scalar
 
 
 class PIFit(eqx.Module):
@@ -200,60 +196,11 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
     return params
 
 
-def _prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2):
-    u = _checks.finite(_checks.signal(u, "u"), "u")
-    y = _checks.finite(_checks.signal(y, "y"), "y")
-    if u.shape != y.shape:
-        raise ValueError(f"`u` has {u.shape[0]} samples but `y` has {y.shape[0]}")
-    if not isinstance(n_plays, (int, np.integer)) or n_plays < 1:
-        raise ValueError(f"`n_plays` must be a positive whole number, got {n_plays!r}")
-    dtype = jnp.result_type(u, y)
-    u, y = u.astype(dtype), y.astype(dtype)
-    mask = jnp.ones_like(u) if mask is None else jnp.asarray(mask, dtype)
-    if mask.shape != u.shape:
-        raise ValueError(f"`mask` has shape {mask.shape}, expected {u.shape}")
-    n_fit = int(np.sum(np.asarray(mask) > 0))
-    if per_play * n_plays + 1 > n_fit:
-        raise ValueError(
-            f"{n_plays} plays need {per_play * n_plays + 1} parameters but only {n_fit} samples "
-            "are fitted; use fewer plays or a longer record"
-        )
-    un, yn = np.asarray(u), np.asarray(y)
-    u_lo, u_hi = float(un.min()), float(un.max())
-    if not u_hi > u_lo:
-        raise ValueError(f"the input has zero range (constant {u_lo:.6g}): it excites no play")
-    y_lo, y_hi = float(yn.min()), float(yn.max())
-    y_half = 0.5 * (y_hi - y_lo) if y_hi > y_lo else 1.0
-    s = _Scales(*(jnp.asarray(v, dtype) for v in (0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo),
-                                                   0.5 * (y_lo + y_hi), y_half)))
-    if thresholds0 is not None:
-        r0 = np.asarray(thresholds0, dtype=np.float64)
-        if r0.shape != (n_plays,) or r0[0] != 0 or np.any(np.diff(r0) <= 0):
-            raise ValueError(
-                f"`thresholds0` must be {n_plays} increasing thresholds starting at 0, got {r0}"
-            )
-        thresholds0 = jnp.asarray(r0 / float(s.u_half), dtype)
-    x0 = jnp.broadcast_to(u[0] if initial_states is None else jnp.asarray(initial_states, dtype),
-                          (n_plays,))
-    x0 = (x0 - s.u_mid) / s.u_half
-    un, yn = (u - s.u_mid) / s.u_half, (y - s.y_mid) / s.y_half
-    # Records are padded to a few lengths so that nearby lengths share one compilation. Padding
-    # repeats the last input, which moves no play, and its residuals are masked out.
-    T = u.shape[0]
-    pad = -T % max(512, 2 ** max(int(np.ceil(np.log2(T))) - 3, 0))
-    if pad:
-        un = jnp.concatenate([un, jnp.full(pad, un[-1], dtype)])
-        yn = jnp.concatenate([yn, jnp.zeros(pad, dtype)])
-        mask = jnp.concatenate([mask, jnp.zeros(pad, dtype)])
-    return un, yn, mask, s, x0, thresholds0
-
-
 @eqx.filter_jit
 def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
-                  fit_initial_states, max_steps, rtol, atol):
-    args = (un, yn, x0, mask, positive_weights, r_bound)
-
-    def one(r0):
+                  fit_initial_states, max_steps, rtol, atol, batch=None):
+    def one(r0, un, yn, x0, mask, r_bound):
+        args = (un, yn, x0, mask, positive_weights, r_bound)
         p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound)
         sol = optx.least_squares(_residuals, _solver(solver, rtol, atol), p0, args=args,
                                  max_steps=max_steps, throw=False)
@@ -262,7 +209,18 @@ def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
         loss = jnp.where(jnp.isfinite(loss), loss, jnp.inf)
         return sol.value, loss, sol.result, sol.stats["num_steps"]
 
-    return jax.vmap(one)(r0s)
+    # Every data argument is batched along with the starts: reverse-mode differentiation of the
+    # solver's implicit derivative under `vmap` fails when its arguments are shared (unbatched)
+    # across the starts, while batched copies transpose cleanly. The copies cost starts x T.
+    n = r0s.shape[0]
+    data = (un, yn, x0, mask) + (() if r_bound is None else (r_bound,))
+    data = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), data)
+    fn = (lambda xs: one(xs[0], *xs[1:], None)) if r_bound is None else (lambda xs: one(*xs))
+    if batch is None or batch >= n:
+        return jax.vmap(fn)((r0s, *data))
+    # `batch` starts at a time under vmap, the batches one after another: memory grows with
+    # batch x T rather than starts x T.
+    return lax.map(fn, (r0s, *data), batch_size=batch)
 
 
 def fit_pi(
@@ -282,6 +240,7 @@ def fit_pi(
     max_steps: int = 100,
     rtol: float = 1e-6,
     atol: float = 1e-9,
+    starts_at_once: int | None = None,
 ) -> PIFit:
     """Fit thresholds, weights and an output offset (optionally initial states) to one record.
 
@@ -293,7 +252,8 @@ def fit_pi(
     - `fit_initial_states`: also fit the plays' states before the first sample.
     - `initial_states`: fixed states (scalar or (n,)) when they are not fitted; default u[0].
     - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`.
-    - `n_starts`: threshold grids solved at once by `vmap`; the best is kept.
+    - `n_starts`: starting threshold grids, solved under `vmap` (see `starts_at_once`); the best
+      is kept.
     - `key`: a PRNG key; when given, starts after the first use random threshold spacings.
     - `thresholds0`: (n,) starting thresholds (r_1 = 0, increasing) instead of the grids.
     - `mask`: (T,) weights on the samples' residuals, 0 to hold a sample out (it still drives
@@ -301,6 +261,11 @@ def fit_pi(
     - `max_threshold`: an upper bound on every threshold (data units), kept by construction;
       e.g. a fraction of half the input range, where plays are barely excited (default none).
     - `max_steps`, `rtol`, `atol`: the solver's budget and tolerances (normalised units).
+    - `starts_at_once`: how many starts are solved together under `vmap`; further ones follow
+      batch by batch. Memory grows with `starts_at_once` x T (about 1 kB per sample and start in
+      float64, mostly the residuals' Jacobian and its factorisation), so the default keeps
+      `starts_at_once` x T near 2^20 samples: all starts at once for records up to 2^18 samples,
+      one at a time from 2^20.
 
     **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
     non-finite data, an input with zero range, or more parameters than fitted samples.
@@ -309,6 +274,10 @@ def fit_pi(
         raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
     if n_starts < 1:
         raise ValueError(f"`n_starts` must be at least 1, got {n_starts}")
+    if starts_at_once is not None and (
+        not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1
+    ):
+        raise ValueError(f"`starts_at_once` must be a positive whole number, got {starts_at_once}")
     un, yn, mask, s, x0, r_start = _prepare(
         u, y, n_plays, mask, thresholds0, initial_states, 3 if fit_initial_states else 2
     )
@@ -323,9 +292,12 @@ def fit_pi(
         r_bound = jnp.asarray(float(max_threshold), un.dtype) / s.u_half
         if r_start is not None and float(r_start[-1]) >= float(r_bound):
             raise ValueError("`thresholds0` must lie below `max_threshold`")
+    if starts_at_once is None:
+        starts_at_once = max(1, 2**20 // un.shape[0])
     params, loss, results, steps = _solve_starts(
         r0s, un, yn, x0, mask, r_bound, solver=solver, positive_weights=positive_weights,
         fit_initial_states=fit_initial_states, max_steps=max_steps, rtol=rtol, atol=atol,
+        batch=min(int(starts_at_once), r0s.shape[0]),
     )
     best = int(jnp.argmin(loss))
     if not bool(jnp.isfinite(loss[best])):

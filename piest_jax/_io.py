@@ -1,65 +1,279 @@
-"""Writing results so that an interrupted run never leaves a half-written file.
+"""Writing results so that an interrupted or failed run never leaves a half-written file or a
+half-replaced set of files.
 
-Every file is written to a temporary name in the same folder and renamed into place, which is
-atomic on POSIX file systems.
+Every file is written to a hidden temporary name in its destination folder and renamed into place,
+which is atomic on POSIX file systems. Inside an [`output_transaction`][] (every `piest` command
+runs in one) the renames wait until the command has succeeded and then happen together, so the
+output folder holds either the previous complete set of results or the new complete set.
 """
 
+import contextlib
+import contextvars
 import json
 import math
 import os
+import signal
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
 
+# Temporaries are `.NAME.PID.RANDOM.tmp`: hidden, never mistaken for results, and the PID tells a
+# later run whether the writer is gone.
+_TMP_SUFFIX = ".tmp"
+# Debris of a killed writer is removed only after this long, so a slow writer on another machine
+# sharing the folder is never disturbed.
+_DEBRIS_AGE_S = 3600.0
 
-def _jsonable(x):
+
+class NonFiniteError(ValueError):
+    """A result that should be a number is NaN or infinite."""
+
+
+class OutputTransaction:
+    """The files of one run, staged under temporary names and renamed into place together.
+
+    Create it with [`output_transaction`][]; the writers of this module stage into the active one.
+    """
+
+    def __init__(self, nonfinite=(), outputs=()):
+        self.nonfinite = frozenset(nonfinite)
+        self.outputs = tuple(outputs)
+        self._staged: dict[Path, str] = {}
+        self._stale: list[Path] = []
+        self._created: list[Path] = []
+
+    def stage(self, path: Path, write) -> Path:
+        """Write `path`'s new contents to a temporary file; it appears at `commit`."""
+        path = Path(path)
+        if path.is_dir():
+            raise IsADirectoryError(f"{path} is a folder; cannot write a result there")
+        tmp = _write_temporary(path, write)
+        old = self._staged.pop(path, None)
+        if old is not None:  # written twice in one run: the last version wins
+            _unlink(old)
+        self._staged[path] = tmp
+        return path
+
+    def commit(self) -> None:
+        """Rename every staged file into place (and remove this command's results of an earlier
+        run that this run did not rewrite), shielded from Ctrl-C and `kill`."""
+        with _signals_deferred():
+            staged, self._staged = self._staged, {}
+            stale = [p for p in self._stale if p not in staged]
+            self._stale, self._created = [], []
+            try:
+                for path, tmp in staged.items():
+                    os.replace(tmp, path)
+                for p in stale:
+                    _unlink(p)
+            finally:
+                for tmp in staged.values():  # left only if a rename failed
+                    _unlink(tmp)
+            for folder in {p.parent for p in staged}:
+                _fsync_folder(folder)
+
+    def abort(self) -> None:
+        """Drop every staged file; remove folders this run created if they are still empty."""
+        for tmp in self._staged.values():
+            _unlink(tmp)
+        self._staged, self._stale = {}, []
+        for folder in reversed(self._created):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        self._created = []
+
+
+_ACTIVE: contextvars.ContextVar[OutputTransaction | None] = contextvars.ContextVar(
+    "piest_output_transaction", default=None
+)
+
+
+@contextlib.contextmanager
+def output_transaction(*, nonfinite=(), outputs=()):
+    """Make every file written inside the block appear together when the block succeeds.
+
+    **Arguments:** `nonfinite`, names of JSON keys (or CSV columns) whose values may legitimately
+    be infinite or NaN (written as `null` and listed under the report's `"non_finite"` key); any
+    other non-finite number fails the run with [`NonFiniteError`][]. `outputs`, every file name the
+    command can write: with `--force`, ones that an earlier run left and this run does not
+    rewrite are removed at commit, so the folder never mixes two runs.
+
+    **Returns:** a context manager yielding the [`OutputTransaction`][]. On an exception
+    (Ctrl-C included) nothing is renamed: the previous results stay as they were and the
+    temporaries are removed.
+    """
+    tx = OutputTransaction(nonfinite, outputs)
+    token = _ACTIVE.set(tx)
+    try:
+        yield tx
+    except BaseException:
+        tx.abort()
+        raise
+    else:
+        tx.commit()
+    finally:
+        _ACTIVE.reset(token)
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    # The renames take microseconds; a Ctrl-C or kill arriving meanwhile is noted and delivered
+    # right after them, so the folder never holds half of the new set. (Blocking the signals
+    # would not do: any of the process's other threads may receive them.)
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending = []
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        for sig in dict.fromkeys(pending):
+            signal.raise_signal(sig)
+
+
+def _unlink(path) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(path)
+
+
+def _fsync_folder(folder: Path) -> None:
+    # Makes the renames durable; not every platform or file system can open a folder.
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _umask() -> int:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)  # elsewhere the only way to read it is to set it
+    os.umask(mask)
+    return mask
+
+
+def _write_temporary(path: Path, write) -> str:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            # mkstemp makes the file private (rw-------); results get the permissions any other
+            # file the user creates gets.
+            if hasattr(os, "fchmod"):
+                os.fchmod(f.fileno(), 0o666 & ~_umask())
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+    except BaseException:
+        _unlink(tmp)
+        raise
+    return tmp
+
+
+def _atomic_write(path: Path, write) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tx = _ACTIVE.get()
+    if tx is not None:
+        return tx.stage(path, write)
+    tmp = _write_temporary(path, write)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        _unlink(tmp)
+        raise
+    return path
+
+
+def _where(keys) -> str:
+    text = ""
+    for k in keys:
+        text += f"[{k}]" if isinstance(k, int) else (f".{k}" if text else str(k))
+    return text or "the value"
+
+
+def _jsonable(x, keys=(), bad=None):
+    """`x` as plain JSON types; each non-finite float becomes None and its location goes to `bad`."""
+    bad = [] if bad is None else bad
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): _jsonable(v, (*keys, str(k)), bad) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [_jsonable(v, (*keys, i), bad) for i, v in enumerate(x)]
     if hasattr(x, "__array__") and not isinstance(x, (str, bytes)):
         arr = np.asarray(x)
-        return _jsonable(arr.item() if arr.ndim == 0 else arr.tolist())
+        return _jsonable(arr.item() if arr.ndim == 0 else arr.tolist(), keys, bad)
     if isinstance(x, (np.bool_, bool)):
         return bool(x)
     if isinstance(x, np.integer):
         return int(x)
     if isinstance(x, (np.floating, float)):
         x = float(x)
-        # JSON has no NaN or inf; null says "not available" without breaking strict parsers.
-        return x if math.isfinite(x) else None
+        if math.isfinite(x):
+            return x
+        # JSON has no NaN or inf: the value is written as null and flagged, never silently.
+        bad.append((keys, x))
+        return None
     if isinstance(x, Path):
         return str(x)
     return x
 
 
-def _atomic_write(path: Path, write) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+def _check_finite(name: str, bad, allowed) -> None:
+    """Refuse non-finite values outside the keys where they mean something (`allowed`; None:
+    everywhere, as for library use outside a command)."""
+    if allowed is None:
+        return
+    refused = [(k, v) for k, v in bad if not any(str(c) in allowed for c in k)]
+    if refused:
+        keys, v = refused[0]
+        more = f" (and {len(refused) - 1} more values)" if len(refused) > 1 else ""
+        raise NonFiniteError(
+            f"the result is not finite: {_where(keys)} = {v} in {name}{more}; nothing was written"
+        )
 
 
 def write_json(path, obj) -> Path:
-    """Write `obj` as indented JSON (arrays become lists, NaN/inf become null), atomically.
+    """Write `obj` as indented, strict JSON, atomically.
+
+    Arrays become lists. JSON has no NaN or infinity: a non-finite number is written as `null`
+    and its location and value are listed under the top-level key `"non_finite"` (for example
+    `{"sweep.time_to_1pct[0]": "inf"}`). Inside a command's [`output_transaction`][] only the
+    keys it declares may hold one; anywhere else a non-finite number raises [`NonFiniteError`][]
+    and nothing is written.
 
     **Arguments:** `path`, the destination; `obj`, nested dicts/lists of numbers, strings, arrays.
 
     **Returns:** the path written.
     """
-    text = json.dumps(_jsonable(obj), indent=2, allow_nan=False) + "\n"
-    return _atomic_write(Path(path), lambda f: f.write(text.encode()))
+    path = Path(path)
+    bad = []
+    data = _jsonable(obj, (), bad)
+    tx = _ACTIVE.get()
+    _check_finite(path.name, bad, None if tx is None else tx.nonfinite)
+    if bad:
+        if not isinstance(data, dict):
+            raise NonFiniteError(f"{path.name}: non-finite values can only be flagged in a JSON object")
+        data["non_finite"] = {_where(k): str(v) for k, v in bad}
+    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
+    return _atomic_write(path, lambda f: f.write(text.encode()))
 
 
 def write_text(path, text: str) -> Path:
@@ -70,18 +284,29 @@ def write_text(path, text: str) -> Path:
 def write_csv(path, columns: dict) -> Path:
     """Write equal-length columns as a CSV with a header row, atomically.
 
+    Inside a command's [`output_transaction`][] a NaN or infinite value raises
+    [`NonFiniteError`][] (unless its column is declared as allowed to hold one).
+
     **Arguments:** `path`; `columns`, a mapping from column name to a 1-D array.
 
     **Returns:** the path written.
     """
+    path = Path(path)
     names = list(columns)
     data = np.column_stack([np.asarray(columns[k], dtype=np.float64) for k in names])
+    tx = _ACTIVE.get()
+    if tx is not None:
+        bad = ~np.isfinite(data)
+        for j in np.flatnonzero(bad.any(axis=0)):
+            if names[j] not in tx.nonfinite:
+                i = int(np.flatnonzero(bad[:, j])[0])
+                _check_finite(path.name, [((names[j], i), float(data[i, j]))], tx.nonfinite)
 
     def write(f):
         f.write((",".join(names) + "\n").encode())
         np.savetxt(f, data, delimiter=",", fmt="%.17g")
 
-    return _atomic_write(Path(path), write)
+    return _atomic_write(path, write)
 
 
 def save_figure(fig, path, **kwargs) -> Path:
@@ -98,26 +323,68 @@ def save_figure(fig, path, **kwargs) -> Path:
         plt.close(fig)
 
 
+def _remove_debris(out: Path, names) -> None:
+    """Remove temporaries that a killed run (`kill -9`, power loss) left for these results."""
+    now = time.time()
+    for name in names:
+        for p in out.glob(f".{name}.*{_TMP_SUFFIX}"):
+            parts = p.name[len(name) + 2:].split(".")
+            if not (len(parts) == 3 and parts[0].isdigit()):
+                continue
+            try:
+                if now - p.stat().st_mtime < _DEBRIS_AGE_S or _alive(int(parts[0])):
+                    continue
+                p.unlink()
+            except OSError:
+                pass
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists but belongs to someone else
+        return True
+    return True
+
+
 def check_outputs(out_dir, names, force: bool) -> Path:
     """Refuse to overwrite existing results unless `force` is set.
 
     **Arguments:** `out_dir`, the output folder; `names`, the files a command will write;
     `force`, overwrite them if present.
 
-    **Returns:** the output folder as a `Path` (created if missing). Raises `FileExistsError`
-    naming the first existing file otherwise.
+    **Returns:** the output folder as a `Path` (created if missing; inside an
+    [`output_transaction`][] removed again if the run fails and it is still empty). Raises
+    `FileExistsError` naming the first existing file otherwise. Inside a transaction the
+    command's other outputs (from an earlier run with other options) count as existing results
+    too; with `force` they are removed when the new results land.
     """
     out = Path(out_dir)
+    tx = _ACTIVE.get()
+    names = list(names)
+    others = [n for n in (tx.outputs if tx is not None else ()) if n not in names]
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"--out {out} exists and is not a folder")
+    for name in names + others:
+        if (out / name).is_dir():
+            raise IsADirectoryError(f"{out / name} is a folder; cannot write a result there")
     if not force:
-        for name in names:
+        for name in names + others:
             if (out / name).exists():
                 raise FileExistsError(
                     f"{out / name} already exists; pass --force to overwrite it"
                 )
+    missing = [p for p in (out, *out.parents) if not p.exists()]
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OSError(f"--out {out}: cannot create the folder ({e.strerror or e})") from None
+    if tx is not None:
+        tx._created.extend(reversed(missing))
+        tx._stale.extend(out / n for n in others if (out / n).exists())
+    _remove_debris(out, names + others)
     return out

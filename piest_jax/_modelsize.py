@@ -8,7 +8,10 @@ the plays' states carry over, and its RMSE there is the score. The smallest n wh
 **BIC**: T ln(MSE) + k ln T on the whole record, k = 2n + 1 parameters (3n + 1 with fitted initial
 states), minimised.
 
-Candidates differ in shape, so each one compiles the fit once per record length.
+Candidates differ in shape, so each one compiles the fit once per record length; on long records
+that compilation and the larger models' solves dominate. Candidates are therefore tried from the
+smallest up, and the search stops once `patience` candidates in a row have not improved the best
+score (by more than `tolerance` for held-out error); the larger ones are then not fitted at all.
 """
 
 import dataclasses
@@ -18,6 +21,7 @@ import numpy as np
 
 from . import _checks
 from ._fit import PIFit, fit_pi
+from ._progress import progress
 
 CRITERIA = ("holdout", "bic")
 
@@ -29,7 +33,8 @@ class ModelSize:
     **Fields:**
 
     - `n_plays`: the chosen number of plays.
-    - `candidates`: the numbers tried; `scores`: their held-out RMSE or BIC, in the same order.
+    - `candidates`: the numbers tried, smallest first (the search may stop before the largest
+      requested); `scores`: their held-out RMSE or BIC, in the same order.
     - `criterion`: `"holdout"` or `"bic"`.
     - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
     """
@@ -66,6 +71,8 @@ def select_plays(
     criterion: str = "holdout",
     holdout: float = 0.3,
     tolerance: float = 0.01,
+    patience: int | None = 2,
+    quiet: bool = True,
     **fit_kwargs,
 ) -> ModelSize:
     """Choose the number of plays by held-out error on a blocked split, or by BIC.
@@ -77,6 +84,8 @@ def select_plays(
     - `criterion`: `"holdout"` or `"bic"`.
     - `holdout`: the fraction of the record, at its end, held out (criterion `"holdout"`).
     - `tolerance`: relative slack on the best held-out RMSE within which the smallest n wins.
+    - `patience`: stop after this many candidates in a row without improvement (None: try all).
+    - `quiet`: when False, show a progress bar over the candidates (on a terminal only).
     - `fit_kwargs`: passed to [`fit_pi`][] (solver, positive_weights, n_starts, key, ...).
 
     **Returns:** a [`ModelSize`][]. Raises `ValueError` for an unknown criterion or bad candidates.
@@ -88,30 +97,46 @@ def select_plays(
         raise ValueError(f"`candidates` must be distinct positive numbers, got {candidates}")
     if tolerance < 0:
         raise ValueError(f"`tolerance` must be non-negative, got {tolerance}")
+    if patience is not None and (not isinstance(patience, (int, np.integer)) or patience < 1):
+        raise ValueError(f"`patience` must be a positive whole number or None, got {patience}")
+    cands = tuple(sorted(cands))
     u = _checks.signal(u, "u")
     y = _checks.signal(y, "y")
     T = u.shape[0]
     fits = {}
     scores = []
-    if criterion == "holdout":
-        mask = holdout_mask(T, holdout)
-        test = mask == 0
-        for n in cands:
+    tried = []
+    per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
+    mask = holdout_mask(T, holdout) if criterion == "holdout" else None
+    since_best = 0
+    bar = progress(cands, desc="plays", quiet=quiet)
+    for n in bar:
+        if criterion == "holdout":
+            test = mask == 0
             f = fit_pi(u, y, n, mask=mask, **fit_kwargs)
             pred = np.asarray(f(u))
-            scores.append(float(np.sqrt(np.mean((pred[test] - np.asarray(y)[test]) ** 2))))
-        best = min(scores)
-        chosen = next(n for n, s in zip(cands, scores) if s <= best * (1 + tolerance))
-    else:
-        per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
-        for n in cands:
+            score = float(np.sqrt(np.mean((pred[test] - np.asarray(y)[test]) ** 2)))
+            improved = not scores or score < min(scores) * (1 - tolerance)
+        else:
             f = fit_pi(u, y, n, **fit_kwargs)
             fits[n] = f
             mse = max(float(f.rmse) ** 2, np.finfo(np.float64).tiny)
-            scores.append(T * np.log(mse) + (per_play * n + 1) * np.log(T))
-        chosen = cands[int(np.argmin(scores))]
+            score = T * np.log(mse) + (per_play * n + 1) * np.log(T)
+            improved = not scores or score < min(scores)
+        tried.append(n)
+        scores.append(score)
+        since_best = 0 if improved else since_best + 1
+        if patience is not None and since_best >= patience:
+            break
+    if hasattr(bar, "close"):
+        bar.close()
+    if criterion == "holdout":
+        best = min(scores)
+        chosen = next(n for n, s in zip(tried, scores) if s <= best * (1 + tolerance))
+    else:
+        chosen = tried[int(np.argmin(scores))]
     fit = fits.get(chosen) or fit_pi(u, y, chosen, **fit_kwargs)
-    return ModelSize(chosen, cands, tuple(float(s) for s in scores), criterion, fit)
+    return ModelSize(chosen, tuple(tried), tuple(float(s) for s in scores), criterion, fit)
 
 
 def rmse(a, b) -> float:

@@ -96,6 +96,11 @@ def test_not_invertible_model_is_rejected():
     _, yd = desired(20)
     with pytest.raises(ValueError, match="not invertible"):
         pj.feedforward(pj.PIOperator(R, [1.0, -2.0, 0.1, 0.1]), yd)
+    # Huge but finite parameters: the inverse's would overflow; the message says so.
+    with pytest.raises(ValueError, match="out of the range of float64: the inverse's thresholds"):
+        pj.feedforward(pj.PIOperator([0.0, 1e300], [1e300, 1.0]), yd)
+    with pytest.raises(ValueError, match="out of the range of float64: the inverse's weights"):
+        pj.feedforward(pj.PIOperator([0.0, 1.0], [1e-300, 1e-300]), yd)
     with pytest.raises(ValueError, match="must be a PIFit or a PIOperator"):
         pj.feedforward("model", yd)
     with pytest.raises(ValueError, match="`desired` contains NaN"):
@@ -138,3 +143,7 @@ def test_cli_compensate_bad_input(tmp_path, capsys):
     write_model(tmp_path / "neg.json", weights=[1.0, -2.0, 0.1, 0.1])
     assert main(["compensate", str(tmp_path / "neg.json"), *args[1:], "--column", "z"]) == 2
     assert "not invertible" in capsys.readouterr().err
+    write_model(tmp_path / "huge.json", weights=[1e-300, 1e-300, 1e-300, 1e-300])
+    assert main(["compensate", str(tmp_path / "huge.json"), *args[1:], "--column", "z"]) == 2
+    err = capsys.readouterr().err
+    assert "out of the range of float64" in err and "NaN" not in err

@@ -72,11 +72,13 @@ def _assert_identical(a, b):
         if n.endswith(".json"):
             # Strict JSON: NaN or inf would break other readers (the writer maps them to null).
             jx, jy = (json.loads(z, parse_constant=lambda c: pytest.fail(f"{n} holds {c}")) for z in (x, y))
-            # NaN or inf is written as null. Only a time that was never reached (reproduce's P0
-            # sweep, where a small gain does not converge within the record) may be null; any
-            # other null would be a result that silently failed.
-            nulls = [p for p in _nulls(jx) if "/time_to_" not in p]
-            assert not nulls, (n, nulls)
+            # NaN or inf is written as null and flagged under "non_finite". Only a time that was
+            # never reached (reproduce's P0 sweep, where a small gain does not converge within
+            # the record) may be null; any other null would be a result that silently failed.
+            nulls = list(_nulls(jx))
+            assert not [p for p in nulls if "/time_to_" not in p], (n, nulls)
+            flagged = jx.get("non_finite", {})
+            assert len(flagged) == len(nulls) and set(flagged.values()) <= {"inf"}, (n, flagged)
             if not list(_timing_keys(jx)):
                 assert x == y, n
             else:
@@ -118,7 +120,16 @@ def test_simulate_from_a_file_twice(record, tmp_path, capsys):
 
 
 def test_reproduce_twice(tmp_path, capsys):
-    _assert_identical(*_twice(tmp_path, capsys, ["reproduce", "fig5"]))
+    a, b = _twice(tmp_path, capsys, ["reproduce", "fig5"])
+    _assert_identical(a, b)
+    # The small gains of the P0 sweep never reach 1 % within the record: that time is infinite,
+    # written as null and flagged as such.
+    rep = json.loads((a / "fig5.json").read_text())
+    flagged = rep["non_finite"]
+    assert flagged and all(k.startswith("sweep.time_to_1pct.") for k in flagged)
+    for k in flagged:
+        norm, i = k.removeprefix("sweep.time_to_1pct.").rstrip("]").split("[")
+        assert rep["sweep"]["time_to_1pct"][norm][int(i)] is None
 
 
 def test_diagnose_twice(record, tmp_path, capsys):

@@ -145,6 +145,34 @@ def test_fit_derivative_matches_finite_differences():
     np.testing.assert_allclose(jac, fd, rtol=1e-5)
 
 
+def test_reverse_mode_gradient_through_multistart_fit():
+    # jax.grad of a scalar of the best start's fitted parameters w.r.t. the measured output, through
+    # the vmapped multi-start solve, against central differences of complete re-fits.
+    u, y = record()
+    un, yn, mask, s, x0, _ = _fit._prepare(u, y, 3, None, None, None)
+    r0s = _fit._grid(3, 2, un.dtype, jax.random.key(0))
+    static = dict(solver="lm", positive_weights=True, fit_initial_states=False, max_steps=100,
+                  rtol=1e-6, atol=1e-9)
+    coef = jnp.asarray([0.3, -0.7, 1.1, 0.5, -0.2, 0.9])
+
+    @jax.jit
+    def scalar(yy):
+        p, loss, _, _ = _fit._solve_starts(r0s, un, yy, x0, mask, None, **static)
+        p = jax.tree.map(lambda a: a[jnp.argmin(loss)], p)
+        r, w = _fit._constrained(p, True)
+        return jnp.dot(coef, jnp.concatenate([r[1:], w, p["offset"][None]]))
+
+    grad = jax.grad(scalar)(yn)
+    d = np.concatenate([np.random.default_rng(2).standard_normal(T), np.zeros(un.shape[0] - T)])
+    d = jnp.asarray(d) / s.y_half
+    h = 1e-4
+    fd = (scalar(yn + h * d) - scalar(yn - h * d)) / (2 * h)
+    assert abs(float(fd)) > 1e-3  # a real sensitivity
+    np.testing.assert_allclose(float(jnp.dot(grad, d)), float(fd), rtol=1e-5)
+    # Padded samples are masked out of the fit: the data there cannot move the result.
+    np.testing.assert_array_equal(np.asarray(grad[T:]), 0.0)
+
+
 def test_multistart_equals_single_starts(clean):
     u, y, f = clean
     grids = _fit._grid(3, 4, jnp.float64, jax.random.key(0))
@@ -152,6 +180,10 @@ def test_multistart_equals_single_starts(clean):
         single = pj.fit_pi(u, y, 3, thresholds0=np.asarray(grids[k]) * 0.5 * np.ptp(u))
         np.testing.assert_allclose(single.start_rmse[0], f.start_rmse[k], rtol=1e-6, atol=1e-12)
     assert float(f.rmse) == pytest.approx(float(np.min(f.start_rmse)))
+    # Starts solved one after another (as for long records) give the same fits.
+    seq = pj.fit_pi(u, y, 3, key=jax.random.key(0), starts_at_once=1)
+    np.testing.assert_allclose(seq.start_rmse, f.start_rmse, rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(seq.thresholds, f.thresholds, rtol=1e-9, atol=1e-12)
 
 
 def test_unexcited_play_is_flagged():
@@ -201,6 +233,10 @@ def test_model_size_selection(noisy):
         sel = pj.select_plays(u, y, (2, 3), criterion=criterion, n_starts=1)
         assert sel.n_plays == 3, (criterion, sel.scores)
         assert sel.scores[1] < sel.scores[0]
+    # Early stop: 4 plays do not improve on 3, so with patience 1 the search ends there and 5 is
+    # never fitted; candidates are tried smallest first whatever their order.
+    sel = pj.select_plays(u, y, (4, 2, 5, 3), patience=1, n_starts=1)
+    assert sel.candidates == (2, 3, 4) and sel.n_plays == 3, sel.scores
     mask = holdout_mask(10, 0.3)
     np.testing.assert_array_equal(mask, [1] * 7 + [0] * 3)
 
@@ -215,6 +251,11 @@ def test_bad_requests():
         pj.fit_pi(u, y[:-1], 2)
     with pytest.raises(ValueError, match="`y` contains NaN"):
         pj.fit_pi(u, np.where(np.arange(T) == 5, np.nan, y), 2)
+    # Huge but finite data: the message names the range, not NaN or inf.
+    with pytest.raises(ValueError, match=r"`y` has values up to 1e\+307, out of the range"):
+        pj.fit_pi(u, y * 1e307 / np.max(np.abs(y)), 2)
+    with pytest.raises(ValueError, match="the input's range .* overflows float64"):
+        pj.fit_pi(np.where(u > 1, 1.5e308, -1.5e308), y, 2)
     with pytest.raises(ValueError, match="unknown solver 'adam'"):
         pj.fit_pi(u, y, 2, solver="adam")
     with pytest.raises(ValueError, match="positive whole number"):
@@ -223,6 +264,10 @@ def test_bad_requests():
         pj.fit_pi(u, y, 2, thresholds0=[0.5, 1.0])
     with pytest.raises(ValueError, match="unknown criterion"):
         pj.select_plays(u, y, (1, 2), criterion="aic")
+    with pytest.raises(ValueError, match="`patience` must be a positive whole number"):
+        pj.select_plays(u, y, (1, 2), patience=0)
+    with pytest.raises(ValueError, match="`starts_at_once` must be a positive whole number"):
+        pj.fit_pi(u, y, 2, starts_at_once=0)
     with pytest.raises(ValueError, match="distinct positive"):
         pj.select_plays(u, y, (0, 2))
     with pytest.raises(ValueError, match="strictly between 0 and 1"):

@@ -85,6 +85,63 @@ def test_normalised_estimators_stay_finite_at_any_scale(unit_problem, dtype, run
     assert np.all(np.asarray(e.gain_min_eig) >= 0)
 
 
+_ESTIMATORS = {
+    "forgetting_rls": (pj.ForgettingRLS(1e6, 1.0), 1e-5),
+    "continuous_rls": (pj.ContinuousRLS(1e6, DT), 2e-4),
+    # the normalised gradient converges slowest: about 1e-2 relative after 1.5 s
+    "normalised_gradient": (pj.NormalisedGradient(1.0), 2e-2),
+}
+
+
+@eqx.filter_jit
+def _rescaled(est, Hs, ys, w0s):
+    return jax.vmap(lambda H, y, w0: pj.estimate(est, H, y, w0, rescale=True))(Hs, ys, w0s)
+
+
+@pytest.mark.parametrize("dtype, rtol", [(jnp.float32, 2e-6), (jnp.float64, 1e-12)])
+@pytest.mark.parametrize("name", list(_ESTIMATORS))
+def test_rescale_gives_every_estimator_the_same_answer_in_any_units(unit_problem, name, dtype, rtol):
+    # estimate(..., rescale=True) divides H and y by their peaks and reports in the user's units:
+    # the same record in units from 1e-6 to 1e6 gives the same weights (times sy / su), errors
+    # (times sy) and gains (divided by su²), down to rounding, and the weights are the truth to
+    # within the estimator's convergence after 1.5 s, in float32 as in float64.
+    est, conv = _ESTIMATORS[name]
+    H, y = unit_problem
+    Hs, ys = _scaled(H, y, dtype)
+    su = np.array([a for a, _ in PAIRS])[:, None]
+    sy = np.array([b for _, b in PAIRS])[:, None]
+    e = _rescaled(est, Hs, ys, jnp.zeros((len(PAIRS), 3), dtype))
+    assert _all_finite(e) and e.weights.dtype == dtype
+    unit = PAIRS.index((1.0, 1.0))
+    w = np.asarray(e.weights[:, -1], np.float64) * su / sy
+    np.testing.assert_allclose(w, np.broadcast_to(w[unit], w.shape), rtol=0, atol=rtol * W.max())
+    np.testing.assert_allclose(w[unit], W, rtol=0, atol=conv * W.max())
+    err = np.asarray(e.error, np.float64) / sy
+    np.testing.assert_allclose(err, np.broadcast_to(err[unit], err.shape), rtol=0,
+                               atol=rtol * np.abs(y).max())
+    tr = np.asarray(e.gain_trace, np.float64) * su**2
+    np.testing.assert_allclose(tr, np.broadcast_to(tr[unit], tr.shape), rtol=10 * rtol)
+    # Initial weights are in the user's units too: started at the truth, noise-free data keep
+    # every estimator there.
+    w0 = jnp.asarray(W[None, :] * sy / su, dtype)
+    e0 = _rescaled(est, Hs, ys, w0)
+    np.testing.assert_allclose(np.asarray(e0.weights, np.float64) * (su / sy)[:, :, None],
+                               np.broadcast_to(W, e0.weights.shape), rtol=10 * rtol)
+
+
+def test_rescale_keeps_flat_data_finite():
+    # An output that never moves and a regressor that is all zero keep unit scale, not 0 / 0.
+    H = jnp.zeros((50, 2))
+    e = pj.estimate(pj.ForgettingRLS(10.0), H, jnp.zeros(50), rescale=True)
+    assert _all_finite(e)
+    np.testing.assert_array_equal(np.asarray(e.weights), 0.0)
+    np.testing.assert_allclose(np.asarray(e.gain_trace), 20.0)
+    Hs = jnp.asarray(np.abs(np.sin(np.arange(100.0)))[:, None] * [1.0, 0.5])
+    e = pj.estimate(pj.NormalisedGradient(1.0), Hs * 1e6, jnp.zeros(100), rescale=True)
+    assert _all_finite(e)
+    np.testing.assert_array_equal(np.asarray(e.weights), 0.0)
+
+
 @pytest.mark.parametrize("dtype, rtol", [(jnp.float32, 1e-4), (jnp.float64, 1e-9)])
 def test_continuous_rls_on_normalised_data_reports_user_units(unit_problem, dtype, rtol):
     # The recipe for data in any units: divide by the half ranges (in the working precision),
@@ -118,6 +175,23 @@ def test_diagnosis_accepts_any_scale_and_refuses_flat_signals():
     for bad, match in [((t, np.full_like(u, 1e-9), y), "input u is constant"), ((t, u, np.full_like(y, 1e9)), "constant output")]:
         with pytest.raises(ValueError, match=match):
             _diagnose.check_record(Record(*bad, source="flat"))
+
+
+def test_fit_in_float64_at_extreme_scales():
+    # float32 is checked on the long record below (its own process); here the test process's
+    # float64. The fit normalises internally and reports in the user's units.
+    from piest_jax._fit import fit_pi
+
+    k = np.arange(400)
+    uu = np.sin(2 * np.pi * k / 100) * (1 + 0.4 * np.sin(2 * np.pi * k / 430))
+    yy = ref.pi(uu, [0.0, 0.3, 0.7], [1.0, 0.6, 0.4], x0=uu[0]) + 0.2
+    for su, sy in [(1e-6, 1e6), (1e6, 1e-6)]:
+        f = fit_pi(su * uu, sy * yy, 3, n_starts=2, max_steps=60, key=jax.random.key(0))
+        assert f.weights.dtype == jnp.float64
+        np.testing.assert_allclose(np.asarray(f.thresholds) / su, [0.0, 0.3, 0.7], atol=1e-6)
+        np.testing.assert_allclose(np.asarray(f.weights) * su / sy, [1.0, 0.6, 0.4], atol=1e-6)
+        assert float(f.offset) / sy == pytest.approx(0.2, abs=1e-6)
+        assert float(f.rmse) / sy < 1e-6
 
 
 _LONG_RECORD = textwrap.dedent(

@@ -30,9 +30,10 @@
 # result is the same on one device or many.
 
 # %%
-import functools
 import os
-import time
+import subprocess
+import sys
+import textwrap
 
 import jax
 
@@ -43,16 +44,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax._families import FAMILIES, draw_case
-from piest_jax._montecarlo import (
-    draw_family,
-    draw_keys,
-    draw_statistics,
-    make_settings,
-    numerical_tolerance,
-    pe_map,
-    sharper_condition,
-)
+from piest_jax._families import FAMILIES
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 N_DRAWS = 1400 if SMALL else 14_000  # a multiple of the 7 families
@@ -66,34 +58,13 @@ N_DRAWS = 1400 if SMALL else 14_000  # a multiple of the 7 families
 # continuous RLS ($P_0 = 10^6 I$) after the whole record, in closed form.
 
 # %%
-settings = make_settings(n_samples=1000, n_plays=5, window=200, stride=20)
-t_grid = jnp.arange(settings.n_samples) * settings.dt
-stats = jax.jit(jax.vmap(functools.partial(draw_statistics, settings=settings)))
-
-
-def draw_map(key, n_draws):
-    """The map family by family: draw i uses fold_in(key, i) and family i mod 7, as in pe_map."""
-    index = np.arange(n_draws)
-    family = draw_family(index, settings)
-    keys = draw_keys(key, 0, n_draws)
-    out = {}
-    for f in settings.families:
-        sel = np.flatnonzero(family == f)
-        cases = jax.jit(jax.vmap(lambda k, f=f: draw_case(k, f, t_grid, settings.n_plays)))(keys[sel])
-        part = jax.device_get(stats(*cases))
-        for name, value in part.items():
-            out.setdefault(name, np.zeros((n_draws,) + value.shape[1:], value.dtype))[sel] = value
-    out["family"] = family
-    return out
-
-
-start = time.perf_counter()
-res = draw_map(jax.random.key(2021), N_DRAWS)
-tol = numerical_tolerance(settings.dtype)
+settings = pj.make_settings(n_samples=1000, n_plays=5, window=200, stride=20)
+res = pj.pe_map(jax.random.key(2021), N_DRAWS, settings, quiet=True)
+tol = pj.numerical_tolerance(settings.dtype)
 a1 = res["rho"] >= 1
 pe = res["c1_normalised"] > tol
 sharp = res["sharper"]
-print(f"{N_DRAWS} draws in {time.perf_counter() - start:.1f} s (including compilation)")
+print(f"{N_DRAWS} draws in {res['seconds']:.1f} s (including compilation)")
 
 def confusion(cond, name):
     print(f"{'':>24}{'PE':>8}{'not PE':>8}")
@@ -107,11 +78,15 @@ confusion(sharp, "sharper condition")
 
 # %% [markdown]
 # Read the tables as: *holds and PE* and *fails and not PE* are agreements. Assumption 1 misses
-# many PE cases (it is only sufficient). Cases where Assumption 1 holds but the regressor is not
-# PE are worth a look: they are possible on sampled data when a window contains a full sweep but
-# two plays still move together (e.g. thresholds closer than one sample's input step) or a play
-# frozen at zero. The sharper condition is necessary by construction, so *fails and PE* must be
-# empty; how close *holds and not PE* is to empty measures how far from sufficient it is.
+# many PE cases (it is only sufficient). The cases where Assumption 1 holds but the regressor is
+# not PE contradict Theorem 1 as stated. A typical one is a window on a monotone stretch of u:
+# its range exceeds $2r_{\max}$, but every play already rides its envelope, $h_i = u - r_i$, so
+# all outputs lie in $\mathrm{span}\{1, u\}$ (the proof needs a reversal followed by a travel of
+# $2r_{\max}$ inside the window, which $\rho \ge 1$ does not give). Others come from steps, whose
+# jumps move every play in the same sample, and plays whose thresholds are closer than one
+# sample's input step. The sharper condition is necessary by construction (proved), so *fails and
+# PE* must be empty; how close *holds and not PE* is to empty measures how far from sufficient it
+# is, which is only observed.
 
 # %%
 c1n = np.maximum(res["c1_normalised"], 1e-18)
@@ -156,7 +131,7 @@ u = 5.0 * jnp.sin(2 * jnp.pi * 5.0 * t)
 r = jnp.array([0.0, 10 / 3, 20 / 3])
 for x0 in (jnp.zeros(3), jnp.array([0.0, 0.0, 1.0])):
     H = pj.play(u, r, x0)
-    ok = sharper_condition(H, u, 200, stride=20)
+    ok = pj.sharper_condition(H, u, 200, stride=20)
     print(f"x(0) = {np.asarray(x0)}: ρ = {float(pj.assumption1_ratio(u, r[-1], 200)):.2f}, "
           f"sharper condition in every window: {bool(jnp.all(ok))}, "
           f"c1 = {float(pj.pe_level(H, 200, stride=20)):.3g}")
@@ -164,25 +139,52 @@ for x0 in (jnp.zeros(3), jnp.array([0.0, 0.0, 1.0])):
 # %% [markdown]
 # ## 3. Sharding across devices
 #
-# `pe_map` (what `piest montecarlo` runs) puts the key axis on a one-axis device mesh
-# (`NamedSharding` with `shard_map`), so each device computes its own share of the draws; on a
-# machine with several accelerators the same call uses all of them, in chunks that bound memory.
-# Draw $i$ always uses `fold_in(key, i)` and family $i \bmod 7$, so the answer cannot depend on
-# how the draws are split, over devices or chunks. Below, the first 140 draws through `pe_map`,
-# and draws 700 to 839 as a batch of their own, are compared with the map computed above family
-# by family. The decisions (PE or not, ρ ≥ 1, the sharper condition, which plays move) must be
-# identical; floating-point statistics may differ in the last bits, because XLA vectorises a
-# batch of 140 differently from one of 2000.
+# `pe_map` (what `piest montecarlo` runs) puts the key axis on a one-axis device `Mesh` with a
+# `NamedSharding`, and `shard_map` gives each device its own slice of the keys, in chunks that
+# bound memory; on a machine with several accelerators, or several hosts joined by
+# `jax.distributed`, the same call uses all of them. Here is the sharding it builds over the
+# devices this kernel sees:
 
 # %%
+sharding = pj.mesh_sharding(jax.devices())
 print("devices:", jax.devices())
-first = pe_map(jax.random.key(2021), 140, settings, quiet=True)
-later = pe_map(jax.random.key(2021), 140, settings, start=700, quiet=True)
-for name, part, rows in (("draws 0..139", first, slice(0, 140)), ("draws 700..839", later, slice(700, 840))):
-    keys = [k for k in part if k not in ("seconds", "thresholds")]
-    exact = [k for k in keys if part[k].dtype.kind in "biu"]
-    same = all(np.array_equal(part[k], res[k][rows]) for k in exact)
-    close = all(np.allclose(part[k], res[k][rows], rtol=1e-9, atol=1e-12) for k in keys if k not in exact)
-    decided = np.array_equal(part["c1_normalised"] > tol, pe[rows])
-    print(f"{name} through pe_map: {', '.join(exact)} identical: {same}; "
-          f"PE decisions identical: {decided}; other statistics within 1e-9: {close}")
+print("mesh:", dict(sharding.mesh.shape), " partition spec:", sharding.spec)
+keys = jax.device_put(pj.draw_keys(jax.random.key(2021), 0, 28), sharding)
+print("keys placed on:", sorted(str(d) for d in keys.sharding.device_set))
+
+# %% [markdown]
+# A CPU can pretend to be several devices
+# (`XLA_FLAGS=--xla_force_host_platform_device_count=4`, read when JAX starts), so the multi-device
+# path runs here in a fresh Python process: it maps the first 700 draws over four devices and
+# saves them. Draw $i$ always uses `fold_in(key, i)` and family $i \bmod 7$, so the answer cannot
+# depend on how the draws are split: the decisions (PE or not, ρ ≥ 1, the sharper condition,
+# which plays move) must be identical to the single-device map above, and the floating-point
+# statistics may differ only by rounding (a batch can be summed in another order).
+
+# %%
+N_SHARDED = 700
+script = textwrap.dedent(f"""
+    import jax, numpy as np
+    jax.config.update("jax_enable_x64", True)
+    import piest_jax as pj
+    s = pj.make_settings(n_samples=1000, n_plays=5, window=200, stride=20)
+    res = pj.pe_map(jax.random.key(2021), {N_SHARDED}, s, chunk=350, quiet=True)
+    print("devices:", len(jax.devices()), "mesh:", dict(pj.mesh_sharding(jax.devices()).mesh.shape))
+    np.savez("sharded_map.npz", **{{k: v for k, v in res.items() if k != "seconds"}})
+""")
+env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+print(proc.stdout.strip() or proc.stderr[-2000:])
+with np.load("sharded_map.npz") as f:
+    sharded = dict(f)
+os.remove("sharded_map.npz")
+rows = slice(0, N_SHARDED)
+exact = [k for k in sharded if sharded[k].dtype.kind in "biu"]
+same = all(np.array_equal(sharded[k], res[k][rows]) for k in exact)
+print(f"identical on 4 devices and on 1: {same} ({', '.join(exact)})")
+print("PE decisions identical:", np.array_equal(sharded["c1_normalised"] > tol, pe[rows]))
+for k in ("rho", "weight_error"):
+    gap = np.max(np.abs(sharded[k] - res[k][rows]) / np.maximum(np.abs(res[k][rows]), 1e-300))
+    print(f"{k}: largest relative difference {gap:.1e}")
+gap = np.max(np.abs(sharded["c1_normalised"] - res["c1_normalised"][rows]))
+print(f"c1_normalised (scale free): largest difference {gap:.1e}")

@@ -1,12 +1,15 @@
 """The `piest` command-line tool: `piest COMMAND --help` describes each command."""
 
 import argparse
+import contextlib
+import io
 import os
 import signal
 import sys
 import threading
 from pathlib import Path
 
+from .. import _io
 from ._common import CLIError
 from . import compensate, diagnose, fit, montecarlo, simulate, reproduce
 
@@ -92,7 +95,19 @@ def main(argv=None) -> int:
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main_thread else None
     try:
         _protect_inputs(args)
-        return int(args._run(args) or 0)
+        # The command's files land together when it succeeds, or not at all (see _io); the
+        # paths it prints are held back until they exist.
+        mod = args._module
+        with contextlib.redirect_stdout(io.StringIO()) as paths:
+            with _io.output_transaction(
+                nonfinite=getattr(mod, "NONFINITE", ()), outputs=getattr(mod, "OUTPUTS", ())
+            ) as tx:
+                code = int(args._run(args) or 0)
+                if code:
+                    tx.abort()
+        sys.stdout.write(paths.getvalue())
+        sys.stdout.flush()
+        return code
     except KeyboardInterrupt:
         print(f"piest {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -14,7 +14,11 @@ def add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
         metavar="DIR",
         help=f"folder for the results (default: {default_out}); created if missing",
     )
-    p.add_argument("--force", action="store_true", help="overwrite results already in --out")
+    p.add_argument(
+        "--force", action="store_true",
+        help="replace results already in --out (files this command wrote there before and does "
+        "not write this time are removed, so the folder holds one run)",
+    )
     p.add_argument(
         "--quiet", action="store_true", help="no progress bars; print only the paths written"
     )

@@ -14,10 +14,14 @@ Fit a plain PI model (16 plays on a threshold grid, positive weights, output off
 initial states) to DATA.csv (columns t, u, y), locate where the residual is structured, then try
 each effect (initial_state, delay, linear_dynamics, rate_dependence, creep, asymmetry,
 offset_drift) and name it only when it wins clearly on held-out blocks against the noise floor;
-repeat on what remains. Writes
+repeat on what remains. Both the plain and the final model are then refined jointly (weights and
+every effect's parameters) by optimistix least squares (--solver). A progress bar over the
+candidates shows on a terminal (not with --quiet or --json). Writes
   DIR/report.json  effects (in order), baseline_rmse, final_rmse, noise_std_estimate,
                    candidates (first-round held-out scores), parameters (of the named
-                   effects), rounds, where (located disagreements), and
+                   effects), refinement (solver result, steps, RMSE before/after, which
+                   fit was kept), rounds,
+                   where (located disagreements), and
                    validation {baseline_rmse, final_rmse} with --validate
   DIR/report.png   residuals and loops, before and after
   DIR/report.md    a short written report
@@ -34,6 +38,11 @@ def add_arguments(p):
     p.add_argument(
         "--candidates", metavar="NAMES", default=",".join(EFFECTS),
         help="comma-separated effects to try (default: all seven)",
+    )
+    p.add_argument(
+        "--solver", choices=("lm", "gn", "bfgs", "none"), default="lm",
+        help="optimistix solver for the final joint refinement of both models: lm "
+        "(Levenberg-Marquardt, default), gn (Gauss-Newton), bfgs, or none to keep the grid fit",
     )
     p.add_argument("--json", action="store_true", help="print only the path of report.json")
     add_output_options(p, "piest-diagnose")
@@ -56,7 +65,8 @@ def run(args) -> int:
     check_record(rec)
     if val is not None:
         check_record(val)
-    rep = diagnose(rec, val, max_effects=args.max_effects, candidates=cands)
+    rep = diagnose(rec, val, max_effects=args.max_effects, candidates=cands,
+                   solver=None if args.solver == "none" else args.solver, quiet=args.quiet or args.json)
     arrays = rep.pop("_arrays")
     rep["data"] = str(args.data)
     if val is not None:

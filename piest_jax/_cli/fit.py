@@ -23,7 +23,9 @@ through the play scan (Levenberg-Marquardt by default), thresholds included, and
   DIR/validation.png   the same for --validate VAL.csv
 Thresholds at or above half the input's peak-to-peak range cannot be excited and are flagged.
 --plays auto (the default) picks the number of plays among --candidates by held-out error
-on the last 30 % of the record (or --criterion bic). Weights are kept positive (so the
+on the last 30 % of the record (or --criterion bic), trying them from the smallest up and
+stopping after two in a row that do not improve the score (a progress bar shows on a terminal
+unless --quiet). Weights are kept positive (so the
 model can be inverted by `piest compensate`) unless --signed-weights.
 
 example:  piest fit data.csv --plays 4 --validate val.csv --out fitted"""
@@ -129,7 +131,7 @@ def run(args) -> int:
                 f"{args.data}: {rec.n_samples} samples are too few to choose among --candidates "
                 f"{','.join(map(str, args.candidates))} (each needs {per_play}n + 1 fitted samples)"
             )
-        sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, **opts)
+        sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, quiet=args.quiet, **opts)
         f = sel.fit
         selection = {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores}
     else:

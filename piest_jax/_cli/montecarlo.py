@@ -5,7 +5,9 @@ import numpy as np
 
 from .. import _io
 from .._families import FAMILIES
-from .._montecarlo import make_settings, numerical_tolerance, pe_map, summarise
+from .._map_report import summarise
+from .._map_settings import make_settings, numerical_tolerance
+from .._montecarlo import pe_map
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "montecarlo"
@@ -59,6 +61,13 @@ def add_arguments(p):
     p.add_argument(
         "--chunk", type=positive_int, default=1000, help="draws per compiled call (default 1000)"
     )
+    p.add_argument(
+        "--play-method",
+        default="scan",
+        choices=("scan", "kernel", "auto"),
+        help="how the plays are computed: the JAX scan (default), or the compiled CPU kernel "
+        "(kernel; auto takes it on CPU when it was built), which gives the same outputs",
+    )
     add_output_options(p, "piest-montecarlo")
 
 
@@ -83,6 +92,7 @@ def run(args) -> int:
         P0=args.p0,
         families=families,
         dtype="float32" if args.float32 else "float64",
+        play_method=args.play_method,
     )
     res = pe_map(jax.random.key(args.seed), args.inputs, settings, chunk=args.chunk, quiet=args.quiet)
     tol = numerical_tolerance(settings.dtype)

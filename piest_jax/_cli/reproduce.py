@@ -20,6 +20,10 @@ shows the time to 1 % for P0 from 1e2 to 1e12 under both normalisations.
 
 example:  piest reproduce all --out results/paper"""
 
+# A time that is never reached within the record is infinite (null in the JSON, listed under
+# "non_finite"); any other non-finite result fails the command.
+NONFINITE = ("time_to_1pct", "time_input_exceeds_r_max")
+
 
 def add_arguments(p):
     p.add_argument("figure", choices=[*FIGURES, "all"], help="which figure (or all)")

@@ -15,7 +15,9 @@
 // state equal to a bound) the step counts as held. The adjoint is a reverse recurrence: nu_j
 // accumulates the output cotangents of play j over the current run of held steps; at an active
 // step it flows to u_t (and with sign +1 on the upper, -1 on the lower bound to r_j) and resets;
-// what is left at t = 0 flows to the initial state.
+// what is left at t = 0 flows to the initial state. With AVX it runs in blocks of W steps: first the
+// recurrence over the block (which gives du), then the block's terms of the threshold and weight
+// sums, so that neither loop needs more vector registers than there are.
 //
 // Large outputs are advised onto transparent huge pages before they are written (AdviseHugePages).
 //
@@ -266,36 +268,40 @@ struct Lanes {
   }
 };
 
-// min(a, b) as a < b ? a : b and max(a, b) as a > b ? a : b, the selects of the pure-JAX play step.
-// x86 MINPS/MAXPS compute exactly these (the second operand on ties), in one short instruction.
-template <typename T>
-inline typename Vec<T>::type Min(typename Vec<T>::type a, typename Vec<T>::type b) {
+// Lane-wise binary operations on vectors of T, by the AVX instruction where there is one.
+// Min and Max are a < b ? a : b and a > b ? a : b, the selects of the pure-JAX play step: x86
+// MINPS/MAXPS compute exactly these (the second operand on ties), in one short instruction. And
+// and AndNot (~a & b) act on the bits; with AVX they stay in the floating-point domain (x86 moves
+// data between its integer and floating-point vector units with an extra cycle, and these sit on
+// the loop-carried chain of the backward pass).
 #if defined(__AVX__)
-  if constexpr (sizeof(T) == 4) {
-    return reinterpret_cast<typename Vec<T>::type>(
-        _mm256_min_ps(reinterpret_cast<__m256>(a), reinterpret_cast<__m256>(b)));
-  } else {
-    return reinterpret_cast<typename Vec<T>::type>(
-        _mm256_min_pd(reinterpret_cast<__m256d>(a), reinterpret_cast<__m256d>(b)));
+#define PIEST_VEC_OP(NAME, PS, PD, PORTABLE)                                               \
+  template <typename T>                                                                    \
+  inline typename Vec<T>::type NAME(typename Vec<T>::type a, typename Vec<T>::type b) {    \
+    using V = typename Vec<T>::type;                                                       \
+    if constexpr (sizeof(T) == 4) {                                                        \
+      return reinterpret_cast<V>(PS(reinterpret_cast<__m256>(a), reinterpret_cast<__m256>(b))); \
+    } else {                                                                               \
+      return reinterpret_cast<V>(                                                          \
+          PD(reinterpret_cast<__m256d>(a), reinterpret_cast<__m256d>(b)));                 \
+    }                                                                                      \
   }
 #else
-  return a < b ? a : b;
-#endif
-}
-template <typename T>
-inline typename Vec<T>::type Max(typename Vec<T>::type a, typename Vec<T>::type b) {
-#if defined(__AVX__)
-  if constexpr (sizeof(T) == 4) {
-    return reinterpret_cast<typename Vec<T>::type>(
-        _mm256_max_ps(reinterpret_cast<__m256>(a), reinterpret_cast<__m256>(b)));
-  } else {
-    return reinterpret_cast<typename Vec<T>::type>(
-        _mm256_max_pd(reinterpret_cast<__m256d>(a), reinterpret_cast<__m256d>(b)));
+#define PIEST_VEC_OP(NAME, PS, PD, PORTABLE)                                               \
+  template <typename T>                                                                    \
+  inline typename Vec<T>::type NAME(typename Vec<T>::type a, typename Vec<T>::type b) {    \
+    using V [[maybe_unused]] = typename Vec<T>::type;                                      \
+    using M [[maybe_unused]] = typename Vec<T>::mask;                                      \
+    return PORTABLE;                                                                       \
   }
-#else
-  return a > b ? a : b;
 #endif
-}
+PIEST_VEC_OP(Min, _mm256_min_ps, _mm256_min_pd, a < b ? a : b)
+PIEST_VEC_OP(Max, _mm256_max_ps, _mm256_max_pd, a > b ? a : b)
+PIEST_VEC_OP(And, _mm256_and_ps, _mm256_and_pd,
+             reinterpret_cast<V>(reinterpret_cast<M>(a) & reinterpret_cast<M>(b)))
+PIEST_VEC_OP(AndNot, _mm256_andnot_ps, _mm256_andnot_pd,
+             reinterpret_cast<V>(~reinterpret_cast<M>(a) & reinterpret_cast<M>(b)))
+#undef PIEST_VEC_OP
 
 // Forward over one chunk of NV vectors of plays starting at play j0. r, w and xs point at the
 // chunk's padded lanes; xs holds the states and is updated. h (row stride n), y and codes (row
@@ -403,29 +409,26 @@ void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0,
                    int64_t n, int64_t nc, const uint8_t* codes, const T* g, T* du, bool first,
                    T* dr, T* dx0, T* dw) {
   using V = typename Vec<T>::type;
-  using M = typename Vec<T>::mask;
-  using L = typename Vec<T>::lane;
   constexpr int W = Vec<T>::kWidth;
-  const M sign = M{} + static_cast<L>(L(1) << (8 * sizeof(L) - 1));
   V wv[NV], nu[NV] = {}, sa[NV] = {}, su[NV] = {};
   std::memcpy(wv, w, sizeof(wv));
-  // At t = 0 the bound that moved a state depends on x0 (lane by lane): the lower one unless
-  // u_0 + r < x0, the same comparison as in the forward pass.
-  M lower0[NV];
+  // d x / d r at an active step: +1 on the upper bound, -1 on the lower one. At t = 0 the bound
+  // depends on x0 (lane by lane): the lower one unless u_0 + r < x0, the comparison of the forward
+  // pass.
+  V dxdr0[NV];
   for (int v = 0; v < NV; ++v) {
     V rv, xv;
     std::memcpy(&rv, r + v * W, sizeof(V));
     std::memcpy(&xv, x0 + v * W, sizeof(V));
-    lower0[v] = ~((u[0] + rv) < xv) & sign;
+    dxdr0[v] = ((u[0] + rv) < xv) ? V{} + T(1) : V{} - T(1);
   }
   const int64_t nh = std::min<int64_t>(NV * W, n - j0);
-  // One step back in time; returns the lane-wise terms of du_t. For t >= 1, `flip` is the sign bit
-  // in every lane when the lower bound is the one that moved the states that moved, else zero.
-  auto step = [&](int64_t t, M flip, auto at_zero) __attribute__((always_inline)) {
-    const T ut = u[t];
+  // One step back in time: moves the cotangent that leaves through an active bound out of nu (a,
+  // all of nu or nothing per lane, into as[v]) and returns the lane-wise terms of du_t.
+  auto step = [&](int64_t t, V* as) __attribute__((always_inline)) {
     V acc = {};
     for (int v = 0; v < NV; ++v) {
-      const M moved = FromBits<T>(codes[t * nc + v]);
+      const V moved = reinterpret_cast<V>(FromBits<T>(codes[t * nc + v]));
       if constexpr (kBank) {
         // Padding lanes get a zero cotangent, so they never contribute.
         V gv = {};
@@ -434,41 +437,45 @@ void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0,
       } else {
         nu[v] += g[t];
       }
-      const M nu_bits = reinterpret_cast<M>(nu[v]);
-      // a: the cotangent that leaves through an active bound (all of nu, or nothing when held).
-      const M a_bits = nu_bits & moved;
-      const V a = reinterpret_cast<V>(a_bits);
+      const V a = And<T>(nu[v], moved);
+      nu[v] = AndNot<T>(moved, nu[v]);
+      as[v] = a;
       if constexpr (kBank) {
         acc = v == 0 ? a : acc + a;
       } else {
         acc = v == 0 ? wv[0] * a : acc + wv[v] * a;
-        su[v] += a * ut;
       }
-      // d x / d r is +1 on the upper bound and -1 on the lower one: flip the sign there.
-      if constexpr (decltype(at_zero)::value) {
-        sa[v] += reinterpret_cast<V>(a_bits ^ lower0[v]);
-      } else {
-        sa[v] += reinterpret_cast<V>(a_bits ^ flip);
-      }
-      nu[v] = reinterpret_cast<V>(nu_bits & ~moved);
     }
     return acc;
   };
-  // For t >= 1 the bound that moved a state is the lower one exactly when the input rose (see
-  // CodeBytes), the same for every play.
-  auto step_on = [&](int64_t t) __attribute__((always_inline)) {
-    // A vector compare, not a scalar one: the direction of a random input would defeat a branch.
-    const M rising = (V{} + u[t]) > (V{} + u[t - 1]);
-    return step(t, rising & sign, std::false_type{});
+  // What a step contributes to the parameter sums, given d x / d r (dxdr(v) for vector v) of the
+  // states that moved. Kept apart from `step` so that neither loop needs more vector registers
+  // than there are (spilled accumulators would put a store and a reload on their chains).
+  auto fold = [&](const V* as, T ut, auto dxdr) __attribute__((always_inline)) {
+    for (int v = 0; v < NV; ++v) {
+      if constexpr (!kBank) su[v] += as[v] * ut;
+      // a * (+-1) is exact, so this is the sum of +-a in the same order as a signed add.
+      sa[v] += as[v] * dxdr(v);
+    }
   };
+  // For t >= 1 the bound that moved a state is the lower one exactly when the input rose (see
+  // CodeBytes), the same for every play: d x / d r = -1 if u_t > u_{t-1}, else +1. A vector
+  // select, not a branch, which the direction of a random input would defeat.
   auto put = [&](int64_t t, T d) { du[t] = first ? d : du[t] + d; };
+  auto single = [&](int64_t t) __attribute__((always_inline)) {
+    V as[NV];
+    put(t, HSum<T>(step(t, as)));
+    const V s = (V{} + u[t]) > (V{} + u[t - 1]) ? V{} - T(1) : V{} + T(1);
+    fold(as, u[t], [&](int) { return s; });
+  };
   // Steps len-1 down to 1: the top (len - 1) % W one at a time, then blocks of W; then t = 0.
   const int64_t blocked = kBlockSums ? (len - 1) / W * W : 0;
-  for (int64_t t = len - 1; t > blocked; --t) put(t, HSum<T>(step_on(t)));
+  for (int64_t t = len - 1; t > blocked; --t) single(t);
   if constexpr (kBlockSums) {
     for (int64_t t = blocked - W + 1; t >= 1; t -= W) {
-      V acc[W];
-      for (int k = W - 1; k >= 0; --k) acc[k] = step_on(t + k);
+      V acc[W], as[W][NV];
+#pragma GCC unroll 8
+      for (int k = W - 1; k >= 0; --k) acc[k] = step(t + k, as[k]);
       V s = BlockSum(acc);
       if (!first) {
         V old;
@@ -476,9 +483,22 @@ void BackwardChunk(const T* u, int64_t len, const T* r, const T* w, const T* x0,
         s = old + s;
       }
       std::memcpy(du + t, &s, sizeof(V));
+      // The signs of the block's steps, all at once.
+      V now, before;
+      std::memcpy(&now, u + t, sizeof(V));
+      std::memcpy(&before, u + t - 1, sizeof(V));
+      const V sign = now > before ? V{} - T(1) : V{} + T(1);
+      for (int k = W - 1; k >= 0; --k) {
+        const V sk = V{} + sign[k];
+        fold(as[k], u[t + k], [&](int) { return sk; });
+      }
     }
   }
-  put(0, HSum<T>(step(0, M{}, std::true_type{})));
+  {
+    V as[NV];
+    put(0, HSum<T>(step(0, as)));
+    fold(as, u[0], [&](int v) { return dxdr0[v]; });
+  }
   T nus[NV * W], sas[NV * W], sus[NV * W];
   std::memcpy(nus, nu, sizeof(nus));
   std::memcpy(sas, sa, sizeof(sas));
