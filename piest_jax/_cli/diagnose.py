@@ -19,9 +19,8 @@ every effect's parameters) by optimistix least squares (--solver). A progress ba
 candidates shows on a terminal (not with --quiet or --json). Writes
   DIR/report.json  effects (in order), baseline_rmse, final_rmse, noise_std_estimate,
                    candidates (first-round held-out scores), parameters (of the named
-                   effects), refinement (solver result, steps, RMSE before/after, which
-                   fit was kept), rounds,
-                   where (located disagreements), and
+                   effects), refinement (solver result, steps, RMSE before/after,
+                   which fit was kept), rounds, where (located disagreements), and
                    validation {baseline_rmse, final_rmse} with --validate
   DIR/report.png   residuals and loops, before and after
   DIR/report.md    a short written report
