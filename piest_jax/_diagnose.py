@@ -178,7 +178,8 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
 
     **Returns:** a dict with `effects` (named, in order), `pruned`, `rounds` (each candidate's
     held-out RMSE and score per round), `model_base` and `model_final` (configuration,
-    weights and, with a `solver`, how the refinement went and which fit was kept), `scaling`, `noise_std` and the held-out RMSEs (in the data's units).
+    weights and, with a `solver`, how the refinement went and which fit was kept), `scaling`,
+    `noise_std` and the held-out RMSEs (in the data's units).
     """
     candidates = list(candidates)
     for c in candidates:
@@ -242,10 +243,9 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     models = {}
     for label, c in (("model_base", {}), ("model_final", cfg)):
         f = _effects.fit(full, c)
-        models[label] = dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm)
-        if solver is not None:
-            # Both models get the same joint refinement, so the comparison stays fair.
-            models[label] = _refined(full, thin, c, f, solver)
+        # Both models get the same joint refinement, so the comparison stays fair.
+        models[label] = (dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None
+                         else _refined(full, thin, c, f, solver))
     return dict(
         effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=sigma * sc.y_half,
         step=step, heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
