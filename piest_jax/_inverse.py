@@ -83,4 +83,19 @@ def inverse(op: PIOperator) -> PIOperator:
     # Σ_{j>i} w_j x_j, a reversed cumulative sum shifted by one
     tail = jnp.cumsum((w * x)[::-1])[::-1] - w * x
     x_inv = W * x + tail
+    for what, v in (("thresholds", r_inv), ("weights", w_inv), ("initial states", x_inv)):
+        _in_range(op, what, v)
     return PIOperator(r_inv, w_inv, x_inv, method=op.method)
+
+
+def _in_range(op: PIOperator, what: str, v) -> None:
+    # Huge but finite thresholds or weights (or tiny weights) make the closed forms' products and
+    # reciprocals overflow; say that, rather than let the result's NaN/inf check blame the inverse.
+    if not _checks.is_concrete(v) or bool(jnp.all(jnp.isfinite(v))):
+        return
+    r, w = np.asarray(op.thresholds), np.abs(np.asarray(op.weights))
+    raise ValueError(
+        f"the model is out of the range of {np.asarray(v).dtype.name}: the inverse's {what} "
+        f"overflow (thresholds up to {np.max(np.abs(r)):.3g}, weights from {np.min(w):.3g} to "
+        f"{np.max(w):.3g}); rescale the model's units"
+    )

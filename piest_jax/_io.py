@@ -256,8 +256,8 @@ def write_json(path, obj) -> Path:
     Arrays become lists. JSON has no NaN or infinity: a non-finite number is written as `null`
     and its location and value are listed under the top-level key `"non_finite"` (for example
     `{"sweep.time_to_1pct[0]": "inf"}`). Inside a command's [`output_transaction`][] only the
-    keys it declares may hold one; anywhere else a non-finite number raises [`NonFiniteError`][]
-    and nothing is written.
+    keys it declares may hold one: any other non-finite number raises [`NonFiniteError`][] and
+    nothing is written. Outside a transaction (library use) every one is written and flagged.
 
     **Arguments:** `path`, the destination; `obj`, nested dicts/lists of numbers, strings, arrays.
 
@@ -297,10 +297,10 @@ def write_csv(path, columns: dict) -> Path:
     tx = _ACTIVE.get()
     if tx is not None:
         bad = ~np.isfinite(data)
-        for j in np.flatnonzero(bad.any(axis=0)):
-            if names[j] not in tx.nonfinite:
-                i = int(np.flatnonzero(bad[:, j])[0])
-                _check_finite(path.name, [((names[j], i), float(data[i, j]))], tx.nonfinite)
+        # The first non-finite value of each column, as (column, row) locations.
+        first = [((names[j], int(np.argmax(bad[:, j]))), float(data[np.argmax(bad[:, j]), j]))
+                 for j in np.flatnonzero(bad.any(axis=0))]
+        _check_finite(path.name, first, tx.nonfinite)
 
     def write(f):
         f.write((",".join(names) + "\n").encode())

@@ -25,7 +25,7 @@ import optimistix as optx
 from jax import lax
 
 from . import _effects
-from ._fit import _solver, result_name
+from ._fit import _softplus_inv, _solver, result_name
 from ._fit_data import pad_count
 
 SOLVERS = ("lm", "gn", "bfgs")
@@ -53,10 +53,6 @@ def structure(cfg) -> Structure:
         "delay" in cfg, None if dyn is None else dyn[0],
         len(cfg["creep"]) if "creep" in cfg else 0, "offset_drift" in cfg,
     )
-
-
-def _softplus_inv(x):
-    return x + np.log(-np.expm1(-x))
 
 
 def initial_params(cfg, w) -> dict:
@@ -96,13 +92,17 @@ def to_config(cfg, theta) -> tuple[dict, np.ndarray]:
     """The configuration and `_effects` coefficient vector that a parameter set stands for."""
     t = {k: np.asarray(v, float) for k, v in theta.items()}
     cfg = dict(cfg)
-    w = [np.log1p(np.exp(-np.abs(t["weights"]))) + np.maximum(t["weights"], 0), [t["offset"]]]
+
+    def softplus(v):
+        return np.asarray(jax.nn.softplus(v), float)
+
+    w = [softplus(t["weights"]), [t["offset"]]]
     if "envelope" in t:
         cfg["asymmetry"] = float(t["envelope"])
         w.append(t["poly"])
     if "creep" in t:
         cfg["creep"] = tuple(float(v) for v in np.exp(t["log_creep_tau"]))
-        w.append(np.log1p(np.exp(-np.abs(t["creep"]))) + np.maximum(t["creep"], 0))
+        w.append(softplus(t["creep"]))
     if "drift" in t:
         w.append(t["drift"])
     if "log_rate" in t:

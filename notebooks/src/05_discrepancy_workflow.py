@@ -37,7 +37,6 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import matplotlib.pyplot as plt
-import numpy as np
 
 import piest_jax as pj
 from piest_jax._data import builtin_path, load_record
