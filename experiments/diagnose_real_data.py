@@ -6,6 +6,7 @@ experiments/results/diagnose_real_data.json.
 """
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -16,14 +17,20 @@ jax.config.update("jax_enable_x64", True)
 from piest_jax._cli import main  # noqa: E402
 from piest_jax._data import builtin_path  # noqa: E402
 
-RESULTS = Path(__file__).parent / "results"
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "experiments" / "results"
+
+
+def rel(path):
+    """A path as the reports should show it: relative to the repository root."""
+    return os.path.relpath(Path(path).resolve(), ROOT)
 
 
 def one(name, data, validate=None):
     out = RESULTS / f"diagnose_{name}"
-    argv = ["diagnose", str(builtin_path(data)), "--out", str(out), "--force", "--json"]
+    argv = ["diagnose", rel(builtin_path(data)), "--out", rel(out), "--force", "--json"]
     if validate:
-        argv += ["--validate", str(builtin_path(validate))]
+        argv += ["--validate", rel(builtin_path(validate))]
     t0 = time.time()
     rc = main(argv)
     secs = time.time() - t0
@@ -38,6 +45,9 @@ def one(name, data, validate=None):
 
 
 def main_():
+    # The CLI records the paths it is given; relative ones keep the reports free of this machine's
+    # directories.
+    os.chdir(ROOT)
     res = {
         "aye2018": one("aye2018", "piezo_aye2018_identification.csv", "piezo_aye2018_validation.csv"),
         "chandra2023": one("chandra2023", "piezo_chandra2023_1hz.csv"),

@@ -18,7 +18,9 @@ run's output level, not by the loops' shape: the validation residual's mean diff
 2 units between fits of nearly equal identification RMSE (thresholds bounded or not,
 weights positive or signed), because the plays with thresholds near half the identification
 input's range are barely excited there yet set the level of the smaller validation loops. The
-`threshold_sensitivity` and `verdict` entries of the JSON record this.
+`threshold_sensitivity` and `verdict` entries of the JSON record this, and
+`validation_mean_residual_by_segment` shows the level error where the input rests or swings as far
+as in the identification run, where no loop shape can cause it.
 
 The Chandra record rests at u = 0 for 3.26 s and then steps to -87 V, where the actuator rings; the
 rest and the first 0.25 s after the step are held out (they still drive the plays), and the RMSE is
@@ -78,6 +80,29 @@ def summary(f, val, seconds=None, bound=None):
         # A threshold pressed against `max_threshold` is reached only in the parameters' limit, so
         # the solver keeps creeping towards it: "max_steps_reached" then means a bound is active.
         out["threshold_bound_active"] = bool(np.max(np.asarray(f.thresholds)) >= 0.999 * bound)
+    return out
+
+
+def residual_by_segment(val, models, ptp_full, seconds=2.0):
+    """Mean validation residual per class of 2 s window: input paused, full amplitude, other.
+
+    A pause (input constant) or a window whose input swings as far as the identification run's
+    leaves no room for the loops' shape or amplitude to explain a residual level: what is left
+    there is the output level the two runs disagree on.
+    """
+    w = int(round(seconds / np.median(np.diff(val.t))))
+    out = {}
+    for label, f in models.items():
+        e = np.asarray(f(val.u, 0.0)) - val.y
+        classes = {"paused": [], "full_amplitude": [], "other": []}
+        for k in range(0, val.n_samples - w + 1, w):
+            span = np.ptp(val.u[k:k + w])
+            c = ("paused" if span < 1e-3 * ptp_full
+                 else "full_amplitude" if span >= 0.9 * ptp_full else "other")
+            classes[c].append(float(np.mean(e[k:k + w])))
+        out[label] = {c: {"windows": len(v), "mean": float(np.mean(v)) if v else None,
+                          "min": min(v, default=None), "max": max(v, default=None)}
+                      for c, v in classes.items()}
     return out
 
 
@@ -151,6 +176,9 @@ def aye(quick):
                   "after_full_cycle": np.minimum(r, np.ptp(idr.u) - r),
                   "identification_final": np.asarray(f.operator().final_states(idr.u))}
         init[label] = {k: rmse(np.asarray(f(val.u, x0)), val.y) for k, x0 in states.items()}
+    segments = residual_by_segment(
+        val, {"baseline_20": plain, **({f"fitted_{n_sens}": fits[n_sens]} if n_sens in fits else {})},
+        np.ptp(idr.u))
     best_n = min(fitted, key=lambda n: fitted[n]["validation_rmse"])
     verdict = {
         "baseline_validation_rmse": base["validation_rmse"],
@@ -170,6 +198,7 @@ def aye(quick):
         "verdict": verdict,
         "threshold_sensitivity": sens,
         "validation_rmse_by_initial_states": init,
+        "validation_mean_residual_by_segment": segments,
         "baseline": {"n_plays": BASELINE_PLAYS, "settling_held_out": False, **base},
         "uniform": uniform,
         "fitted": fitted,

@@ -116,19 +116,29 @@ def _softplus_inv(x):
     return x + jnp.log(-jnp.expm1(-x))
 
 
-def _constrained(params, positive_weights, r_bound=None):
+def _constrained(params, positive_weights, r_bound=None, active=None):
+    """Thresholds and weights from the unconstrained parameters.
+
+    `active` (n,) of 1s then 0s marks the plays in use when arrays are padded to a shared play
+    count: the inactive plays get no increment and no weight, so they sit on the top active
+    threshold and change nothing.
+    """
     inc = jax.nn.softplus(params["increments"])
+    if active is not None:
+        inc = inc * active[1:]
     r = jnp.concatenate([jnp.zeros(1, inc.dtype), jnp.cumsum(inc)])
     if r_bound is not None:
         # r_j = r_bound S_j / (1 + S_n): still increasing from 0, and every r_j < r_bound.
         r = r_bound * r / (1.0 + r[-1])
     w = jax.nn.softplus(params["weights"]) if positive_weights else params["weights"]
+    if active is not None:
+        w = w * active
     return r, w
 
 
-def _predict(params, u, x0, positive_weights, r_bound=None):
+def _predict(params, u, x0, positive_weights, r_bound=None, active=None):
     """Normalised model output; x0 is used unless the parameters carry fitted initial states."""
-    r, w = _constrained(params, positive_weights, r_bound)
+    r, w = _constrained(params, positive_weights, r_bound, active)
     x0 = params.get("initial_states", x0)
 
     def step(x, ut):
@@ -141,9 +151,19 @@ def _predict(params, u, x0, positive_weights, r_bound=None):
 
 def _residuals(params, args):
     """Masked residuals scaled so that their sum of squares is the mean squared error."""
-    u, y, x0, mask, positive_weights, r_bound = args
+    u, y, x0, mask, positive_weights, r_bound, active = args
     count = jnp.maximum(jnp.sum(mask), 1.0)
-    return mask * (_predict(params, u, x0, positive_weights, r_bound) - y) / jnp.sqrt(count)
+    res = mask * (_predict(params, u, x0, positive_weights, r_bound, active) - y) / jnp.sqrt(count)
+    if active is None:
+        return res
+    # The inactive plays' parameters do not reach the data residuals; one residual each, zero
+    # where they start, keeps the Jacobian's columns independent (Gauss-Newton needs that) and
+    # leaves them where they are.
+    off = 1.0 - active
+    extra = [off[1:] * params["increments"], off * params["weights"]]
+    if "initial_states" in params:
+        extra.append(off * (params["initial_states"] - x0))
+    return jnp.concatenate([res, *extra])
 
 
 def _solver(name: str, rtol: float, atol: float):
@@ -170,26 +190,35 @@ def _grid(n, n_starts, dtype, key):
     return grids
 
 
-def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_bound=None):
+def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_bound=None,
+                    active=None):
     n = r0.shape[0]
+    # With padded arrays, n counts the active plays only (a traced number); the padding's
+    # regressor columns are zero, so least squares gives them no weight.
+    on = jnp.ones(n, r0.dtype) if active is None else active
+    n_on = n if active is None else jnp.sum(active)
+    top = n - 1 if active is None else jnp.sum(active).astype(int) - 1
 
     def step(x, ut):
         x = play_step(x, ut, r0)
         return x, x
 
     _, Hm = lax.scan(step, x0, u)
-    A = jnp.concatenate([Hm, jnp.ones_like(u)[:, None]], axis=1) * mask[:, None]
+    A = jnp.concatenate([Hm * on, jnp.ones_like(u)[:, None]], axis=1) * mask[:, None]
     sol = jnp.linalg.lstsq(A, y * mask)[0]
     w, c = sol[:n], sol[n]
     if positive_weights:
-        w = _softplus_inv(jnp.maximum(w, 1e-2 / n))
+        w = _softplus_inv(jnp.maximum(w, 1e-2 / n_on))
     if r_bound is None:
         inc = _softplus_inv(jnp.maximum(jnp.diff(r0), 1e-3))
     else:
         # Invert r = r_bound S / (1 + S_n): S = q (1 + S_n) with q = r / r_bound and S_n = q_n/(1-q_n).
-        q = jnp.minimum(r0 / r_bound, 0.95 * (jnp.arange(n) + 1) / n)
-        S = q * (1 + q[-1] / (1 - q[-1]))
+        q = jnp.minimum(r0 / r_bound, 0.95 * (jnp.arange(n) + 1) / n_on)
+        S = q * (1 + q[top] / (1 - q[top]))
         inc = _softplus_inv(jnp.maximum(jnp.diff(S), 1e-3))
+    if active is not None:
+        # Zero is where the inactive parameters' own residuals vanish (see `_residuals`).
+        inc, w = inc * active[1:], w * active
     params = {"increments": inc, "weights": w, "offset": c}
     if fit_initial_states:
         params["initial_states"] = x0
@@ -198,10 +227,11 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
 
 @eqx.filter_jit
 def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
-                  fit_initial_states, max_steps, rtol, atol, batch=None):
-    def one(r0, un, yn, x0, mask, r_bound):
-        args = (un, yn, x0, mask, positive_weights, r_bound)
-        p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound)
+                  fit_initial_states, max_steps, rtol, atol, batch=None, active=None):
+    def one(r0, un, yn, x0, mask, r_bound, active):
+        args = (un, yn, x0, mask, positive_weights, r_bound, active)
+        p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound,
+                             active)
         sol = optx.least_squares(_residuals, _solver(solver, rtol, atol), p0, args=args,
                                  max_steps=max_steps, throw=False)
         res = _residuals(sol.value, args)
@@ -213,9 +243,12 @@ def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
     # solver's implicit derivative under `vmap` fails when its arguments are shared (unbatched)
     # across the starts, while batched copies transpose cleanly. The copies cost starts x T.
     n = r0s.shape[0]
-    data = (un, yn, x0, mask) + (() if r_bound is None else (r_bound,))
+    data = (un, yn, x0, mask, r_bound, active)
     data = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), data)
-    fn = (lambda xs: one(xs[0], *xs[1:], None)) if r_bound is None else (lambda xs: one(*xs))
+
+    def fn(xs):
+        return one(*xs)
+
     if batch is None or batch >= n:
         return jax.vmap(fn)((r0s, *data))
     # `batch` starts at a time under vmap, the batches one after another: memory grows with
@@ -241,6 +274,7 @@ def fit_pi(
     rtol: float = 1e-6,
     atol: float = 1e-9,
     starts_at_once: int | None = None,
+    pad_plays: int | None = None,
 ) -> PIFit:
     """Fit thresholds, weights and an output offset (optionally initial states) to one record.
 
@@ -266,6 +300,10 @@ def fit_pi(
       float64, mostly the residuals' Jacobian and its factorisation), so the default keeps
       `starts_at_once` x T near 2^20 samples: all starts at once for records up to 2^18 samples,
       one at a time from 2^20.
+    - `pad_plays`: solve with arrays for this many plays (at least `n_plays`), the extra ones
+      inactive, so that fits with different `n_plays` share one compilation (as
+      [`select_plays`][] does on short records); the result is the same fit up to rounding, at the cost of
+      `pad_plays` plays' work per step. Not with `thresholds0`.
 
     **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
     non-finite data, an input with zero range, or more parameters than fitted samples.
@@ -285,6 +323,20 @@ def fit_pi(
         r0s = _grid(n_plays, n_starts, un.dtype, key)
     else:
         r0s = r_start[None, :]
+    active = None
+    if pad_plays is not None:
+        if not isinstance(pad_plays, (int, np.integer)) or pad_plays < n_plays:
+            raise ValueError(
+                f"`pad_plays` must be a whole number of at least n_plays={n_plays}, got {pad_plays!r}"
+            )
+        if r_start is not None:
+            raise ValueError("`pad_plays` and `thresholds0` cannot be combined")
+    if pad_plays is not None and pad_plays > n_plays:
+        extra = int(pad_plays) - n_plays
+        # The padding repeats the top start threshold and state; the plays are inactive anyway.
+        r0s = jnp.concatenate([r0s, jnp.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
+        x0 = jnp.concatenate([x0, jnp.repeat(x0[-1:], extra)])
+        active = (jnp.arange(int(pad_plays)) < n_plays).astype(un.dtype)
     r_bound = None
     if max_threshold is not None:
         if not float(max_threshold) > 0:
@@ -297,14 +349,15 @@ def fit_pi(
     params, loss, results, steps = _solve_starts(
         r0s, un, yn, x0, mask, r_bound, solver=solver, positive_weights=positive_weights,
         fit_initial_states=fit_initial_states, max_steps=max_steps, rtol=rtol, atol=atol,
-        batch=min(int(starts_at_once), r0s.shape[0]),
+        batch=min(int(starts_at_once), r0s.shape[0]), active=active,
     )
     best = int(jnp.argmin(loss))
     if not bool(jnp.isfinite(loss[best])):
         raise ValueError("every start of the fit produced non-finite residuals")
     p = jax.tree.map(lambda a: a[best], params)
-    r, w = _constrained(p, positive_weights, r_bound)
+    r, w = _constrained(p, positive_weights, r_bound, active)
     xn = p.get("initial_states", x0)
+    r, w, xn = r[:n_plays], w[:n_plays], xn[:n_plays]
     thresholds = r * s.u_half
     weights = w * s.y_half / s.u_half
     states = s.u_mid + s.u_half * xn
@@ -337,7 +390,7 @@ def uniform_pi(
     un, yn, mask, s, x0, _ = _prepare(u, y, n_plays, mask, None, initial_states)
     r0 = jnp.arange(n_plays, dtype=un.dtype) / n_plays
     p = _initial_params(r0, un, yn, x0, mask, False, False)
-    loss = jnp.sum(_residuals(p, (un, yn, x0, mask, False, None)) ** 2)
+    loss = jnp.sum(_residuals(p, (un, yn, x0, mask, False, None, None)) ** 2)
     weights = p["weights"] * s.y_half / s.u_half
     return PIFit(
         thresholds=r0 * s.u_half,

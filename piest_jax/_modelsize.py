@@ -8,10 +8,16 @@ the plays' states carry over, and its RMSE there is the score. The smallest n wh
 **BIC**: T ln(MSE) + k ln T on the whole record, k = 2n + 1 parameters (3n + 1 with fitted initial
 states), minimised.
 
-Candidates differ in shape, so each one compiles the fit once per record length; on long records
-that compilation and the larger models' solves dominate. Candidates are therefore tried from the
-smallest up, and the search stops once `patience` candidates in a row have not improved the best
-score (by more than `tolerance` for held-out error); the larger ones are then not fitted at all.
+Each shape compiles the fit once per record length, about 3-4 s on a CPU. On records of up to
+`SHARED_UP_TO` samples, where that dominates, every candidate is padded with inactive plays to
+the largest one (`fit_pi`'s `pad_plays`) so that all share one compilation: in float32 on two
+cores, candidates 1-10 take 29 s instead of 41 s on 8027 samples and 47 s instead of 56 s on
+16054. On longer records the solves dominate and padding only adds work (32108 samples: 73 s
+against 68 s), so each candidate keeps its own shape.
+
+Candidates are tried from the smallest up, and the search stops once `patience` candidates in a
+row have not improved the best score (by more than `tolerance` for held-out error); the larger
+ones are then not fitted at all.
 """
 
 import dataclasses
@@ -63,6 +69,14 @@ def holdout_mask(T: int, holdout: float) -> np.ndarray:
     return mask
 
 
+SHARED_UP_TO = 2**14
+
+
+def padded_plays(n: int, largest: int, T: int) -> int:
+    """The play count candidate `n` is solved with on a record of `T` samples (see above)."""
+    return max(n, largest) if T <= SHARED_UP_TO else n
+
+
 def select_plays(
     u,
     y,
@@ -107,18 +121,23 @@ def select_plays(
     scores = []
     tried = []
     per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
+    largest = max(cands)
+
+    def fit_n(n, **kw):
+        return fit_pi(u, y, n, pad_plays=padded_plays(n, largest, T), **kw, **fit_kwargs)
+
     mask = holdout_mask(T, holdout) if criterion == "holdout" else None
     since_best = 0
     bar = progress(cands, desc="plays", quiet=quiet)
     for n in bar:
         if criterion == "holdout":
             test = mask == 0
-            f = fit_pi(u, y, n, mask=mask, **fit_kwargs)
+            f = fit_n(n, mask=mask)
             pred = np.asarray(f(u))
             score = float(np.sqrt(np.mean((pred[test] - np.asarray(y)[test]) ** 2)))
             improved = not scores or score < min(scores) * (1 - tolerance)
         else:
-            f = fit_pi(u, y, n, **fit_kwargs)
+            f = fit_n(n)
             fits[n] = f
             mse = max(float(f.rmse) ** 2, np.finfo(np.float64).tiny)
             score = T * np.log(mse) + (per_play * n + 1) * np.log(T)
@@ -135,7 +154,7 @@ def select_plays(
         chosen = next(n for n, s in zip(tried, scores) if s <= best * (1 + tolerance))
     else:
         chosen = tried[int(np.argmin(scores))]
-    fit = fits.get(chosen) or fit_pi(u, y, chosen, **fit_kwargs)
+    fit = fits.get(chosen) or fit_n(chosen)
     return ModelSize(chosen, tuple(tried), tuple(float(s) for s in scores), criterion, fit)
 
 

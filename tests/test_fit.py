@@ -8,7 +8,7 @@ import pytest
 
 import piest_jax as pj
 from piest_jax import _fit
-from piest_jax._modelsize import holdout_mask
+from piest_jax._modelsize import holdout_mask, padded_plays
 
 R_TRUE = np.array([0.0, 0.5, 1.2])
 W_TRUE = np.array([1.0, 0.6, 0.4])
@@ -101,7 +101,7 @@ def test_objective_gradient_matches_finite_differences():
         "offset": jnp.asarray(0.1),
         "initial_states": jnp.asarray([0.05, 0.0, -0.05]),
     }
-    args = (jnp.asarray(un), jnp.asarray(yn), jnp.zeros(3), jnp.ones(200), True, None)
+    args = (jnp.asarray(un), jnp.asarray(yn), jnp.zeros(3), jnp.ones(200), True, None, None)
 
     @jax.jit
     def loss(p):
@@ -186,6 +186,34 @@ def test_multistart_equals_single_starts(clean):
     np.testing.assert_allclose(seq.thresholds, f.thresholds, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize(
+    "options",
+    [{}, {"max_threshold": 1.8, "fit_initial_states": True},
+     {"positive_weights": False, "solver": "gn"}],
+    ids=["plain", "bounded_initial_states", "signed_gauss_newton"],
+)
+def test_padded_fit_equals_unpadded(noisy, options):
+    # Inactive plays added to share a compilation change nothing but rounding: the same thresholds,
+    # weights, offset, states and RMSE, for fits that converge and for one stopped by max_steps.
+    u, y, _ = noisy
+    for n, steps in ((3, 100), (3, 4)):
+        a = pj.fit_pi(u, y, n, key=jax.random.key(1), max_steps=steps, **options)
+        b = pj.fit_pi(u, y, n, key=jax.random.key(1), max_steps=steps, pad_plays=6, **options)
+        assert b.thresholds.shape == b.weights.shape == b.initial_states.shape == (n,)
+        assert a.result_name == b.result_name
+        # Stopped after the same 4 steps, the two agree to rounding; converged, either may stop a
+        # step earlier when rounding crosses the solver's rtol (1e-6), so they agree to that.
+        tol = 1e-7 if steps == 4 else 1e-5
+        if steps == 4:
+            assert int(a.n_steps) == int(b.n_steps) == 4
+        for name in ("thresholds", "weights", "offset", "start_rmse"):
+            np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=tol, atol=1e-9,
+                                       err_msg=f"{name}, {n} plays, {steps} steps")
+        # The r = 0 play forgets its initial state at the first sample, so only the others count.
+        np.testing.assert_allclose(b.initial_states[1:], a.initial_states[1:], rtol=tol, atol=1e-9)
+        np.testing.assert_allclose(b(u), a(u), rtol=tol, atol=1e-9)
+
+
 def test_unexcited_play_is_flagged():
     t = np.linspace(0.0, 2.0, T)
     u = np.sin(2 * np.pi * 2 * t)  # peak-to-peak 2: thresholds >= 1 are never traversed
@@ -237,6 +265,9 @@ def test_model_size_selection(noisy):
     # never fitted; candidates are tried smallest first whatever their order.
     sel = pj.select_plays(u, y, (4, 2, 5, 3), patience=1, n_starts=1)
     assert sel.candidates == (2, 3, 4) and sel.n_plays == 3, sel.scores
+    # Short records: candidates share one compilation, padded to the largest; long ones do not.
+    assert [padded_plays(n, 10, 8000) for n in (1, 4, 10)] == [10, 10, 10]
+    assert [padded_plays(n, 10, 10**5) for n in (1, 4, 10)] == [1, 4, 10]
     mask = holdout_mask(10, 0.3)
     np.testing.assert_array_equal(mask, [1] * 7 + [0] * 3)
 
@@ -262,6 +293,10 @@ def test_bad_requests():
         pj.fit_pi(u, y, 0)
     with pytest.raises(ValueError, match="`thresholds0` must be 2 increasing thresholds"):
         pj.fit_pi(u, y, 2, thresholds0=[0.5, 1.0])
+    with pytest.raises(ValueError, match="`pad_plays` must be a whole number of at least"):
+        pj.fit_pi(u, y, 3, pad_plays=2)
+    with pytest.raises(ValueError, match="`pad_plays` and `thresholds0` cannot be combined"):
+        pj.fit_pi(u, y, 2, pad_plays=4, thresholds0=[0.0, 1.0])
     with pytest.raises(ValueError, match="unknown criterion"):
         pj.select_plays(u, y, (1, 2), criterion="aic")
     with pytest.raises(ValueError, match="`patience` must be a positive whole number"):
