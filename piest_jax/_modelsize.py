@@ -5,8 +5,8 @@ record with the last block held out (blocked, not random, so that neighbouring a
 samples never sit on both sides of the split); the model still runs through the held-out block, so
 the plays' states carry over, and its RMSE there is the score. The smallest n whose score is within
 `tolerance` of the best is chosen, since a larger model that is not measurably better only fits noise.
-**BIC**: T ln(MSE) + k ln T on the whole record, k = 2n + 1 parameters (3n + 1 with fitted initial
-states), minimised.
+**BIC**: T ln(MSE) + k ln T on the whole record (T its used samples), k = 2n + 1 parameters
+(3n + 1 with fitted initial states), minimised.
 
 Each shape compiles the fit once per record length, about 3-4 s on a CPU. On records of up to
 `SHARED_UP_TO` samples, where that dominates, every candidate is padded with inactive plays to
@@ -87,6 +87,7 @@ def select_plays(
     tolerance: float = 0.01,
     patience: int | None = 2,
     quiet: bool = True,
+    mask=None,
     **fit_kwargs,
 ) -> ModelSize:
     """Choose the number of plays by held-out error on a blocked split, or by BIC.
@@ -100,6 +101,8 @@ def select_plays(
     - `tolerance`: relative slack on the best held-out RMSE within which the smallest n wins.
     - `patience`: stop after this many candidates in a row without improvement (None: try all).
     - `quiet`: when False, show a progress bar over the candidates (on a terminal only).
+    - `mask`: (T,) 1 on the samples to use, 0 on those that only drive the plays (e.g. a
+      start-up transient), as in [`fit_pi`][]; the hold-out block is scored on used samples only.
     - `fit_kwargs`: passed to [`fit_pi`][] (solver, positive_weights, n_starts, key, ...).
 
     **Returns:** a [`ModelSize`][]. Raises `ValueError` for an unknown criterion or bad candidates.
@@ -126,21 +129,28 @@ def select_plays(
     def fit_n(n, **kw):
         return fit_pi(u, y, n, pad_plays=padded_plays(n, largest, T), **kw, **fit_kwargs)
 
-    mask = holdout_mask(T, holdout) if criterion == "holdout" else None
+    used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
+    if used.shape != (T,):
+        raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
+    if criterion == "holdout":
+        split = holdout_mask(T, holdout)
+        test = (split == 0) & (used > 0)
+        if not test.any():
+            raise ValueError("the held-out block has no used samples (all masked out)")
+    n_used = int(np.sum(used > 0))
     since_best = 0
     bar = progress(cands, desc="plays", quiet=quiet)
     for n in bar:
         if criterion == "holdout":
-            test = mask == 0
-            f = fit_n(n, mask=mask)
+            f = fit_n(n, mask=split * used)
             pred = np.asarray(f(u))
             score = float(np.sqrt(np.mean((pred[test] - np.asarray(y)[test]) ** 2)))
             improved = not scores or score < min(scores) * (1 - tolerance)
         else:
-            f = fit_n(n)
+            f = fit_n(n, mask=mask)
             fits[n] = f
             mse = max(float(f.rmse) ** 2, np.finfo(np.float64).tiny)
-            score = T * np.log(mse) + (per_play * n + 1) * np.log(T)
+            score = n_used * np.log(mse) + (per_play * n + 1) * np.log(n_used)
             improved = not scores or score < min(scores)
         tried.append(n)
         scores.append(score)
@@ -154,7 +164,7 @@ def select_plays(
         chosen = next(n for n, s in zip(tried, scores) if s <= best * (1 + tolerance))
     else:
         chosen = tried[int(np.argmin(scores))]
-    fit = fits.get(chosen) or fit_n(chosen)
+    fit = fits.get(chosen) or fit_n(chosen, mask=mask)
     return ModelSize(chosen, tuple(tried), tuple(float(s) for s in scores), criterion, fit)
 
 

@@ -272,6 +272,35 @@ def test_model_size_selection(noisy):
     np.testing.assert_array_equal(mask, [1] * 7 + [0] * 3)
 
 
+def test_model_size_selection_with_mask(noisy):
+    # A start-up transient that no PI produces: masked out, it neither drives the choice nor the
+    # fit (the plays still run through it), and the held-out score ignores it too.
+    u, y, _ = noisy
+    y = y.copy()
+    y[:40] += 5.0 * np.ptp(y) * np.exp(-np.arange(40) / 8.0)
+    used = np.ones(T)
+    used[:40] = 0.0
+    for criterion in ("holdout", "bic"):
+        sel = pj.select_plays(u, y, (2, 3), criterion=criterion, n_starts=1, mask=used)
+        assert sel.n_plays == 3, (criterion, sel.scores)
+        np.testing.assert_allclose(sel.fit.thresholds, R_TRUE, atol=0.03 * np.ptp(u))
+        ref = pj.fit_pi(u, y, 3, n_starts=1, mask=used)
+        np.testing.assert_allclose(sel.fit.rmse, ref.rmse, rtol=1e-5)
+    # The held-out block is scored only where the mask is 1: masking its last samples changes the
+    # score to the RMSE over the remaining ones.
+    tail = used.copy()
+    tail[-20:] = 0.0
+    a = pj.select_plays(u, y, (3,), n_starts=1, mask=tail)
+    f = pj.fit_pi(u, y, 3, n_starts=1, mask=tail * holdout_mask(T, 0.3))
+    test = (holdout_mask(T, 0.3) == 0) & (tail > 0)
+    expected = np.sqrt(np.mean((np.asarray(f(u))[test] - y[test]) ** 2))
+    assert a.scores[0] == pytest.approx(expected, rel=1e-6)
+    with pytest.raises(ValueError, match=r"`mask` has shape \(10,\), expected \(400,\)"):
+        pj.select_plays(u, y, (2,), mask=np.ones(10))
+    with pytest.raises(ValueError, match="held-out block has no used samples"):
+        pj.select_plays(u, y, (2,), mask=holdout_mask(T, 0.3))
+
+
 def test_bad_requests():
     u, y = record()
     with pytest.raises(ValueError, match="parameters but only 10 samples"):
@@ -346,6 +375,17 @@ def test_cli_fit(tmp_path, capsys, clean):
     assert rc == 0
     rep = __import__("json").loads((out / "fit.json").read_text())
     assert rep["n_plays"] == 3 and rep["selection"]["candidates"] == [2, 3]
+    # --fit-from: a transient before t = 0.2 s is left out of the fit and of its RMSE.
+    yt = y.copy()
+    yt[:40] += 3.0 * np.exp(-np.arange(40) / 8.0)
+    write_record(tmp_path / "transient.csv", u, yt)
+    rc = main(["fit", str(tmp_path / "transient.csv"), "--plays", "3", "--fit-from", "0.2",
+               "--out", str(out), "--force", "--quiet"])
+    assert rc == 0
+    rep = __import__("json").loads((out / "fit.json").read_text())
+    assert rep["fit_from"] == 0.2 and rep["n_fitted_samples"] == T - 40
+    assert rep["rmse"] < 1e-8
+    np.testing.assert_allclose(rep["thresholds"], R_TRUE, atol=1e-6)
 
 
 def test_cli_fit_bad_input(tmp_path, capsys):
@@ -367,6 +407,13 @@ def test_cli_fit_bad_input(tmp_path, capsys):
     assert "flat.csv: the input u is constant (1): it excites no play" in err
     assert main(["fit", str(tmp_path / "short.csv"), "--candidates", "5,6", "--out", out]) == 2
     assert "10 samples are too few to choose among --candidates 5,6" in capsys.readouterr().err
+    write_record(tmp_path / "d.csv", u, y)
+    assert main(["fit", str(tmp_path / "d.csv"), "--fit-from", "99", "--out", out]) == 2
+    assert "no sample at or after --fit-from 99 (the record ends at t = 1.995)" in (
+        capsys.readouterr().err)
+    assert main(["fit", str(tmp_path / "d.csv"), "--fit-from", "1.97", "--candidates", "3",
+                 "--out", out]) == 2
+    assert "6 samples from --fit-from on are too few to choose" in capsys.readouterr().err
     for argv, needle in [(["--plays", "many"], "or 'auto'"), (["--candidates", "2,x"], "2,3,4"),
                          (["--candidates", "2,2"], "repeated")]:
         with pytest.raises(SystemExit) as e:

@@ -8,7 +8,7 @@ import numpy as np
 from .. import _io
 from .._data import load_record
 from .._fit import SOLVERS, fit_pi
-from .._modelsize import CRITERIA, select_plays
+from .._modelsize import CRITERIA, holdout_mask, select_plays
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "fit"
@@ -16,16 +16,17 @@ HELP = "fit thresholds, weights and offset of a PI model to a measured (t, u, y)
 DESCRIPTION = """\
 Fit y = sum_j w_j H_{r_j}[u] + offset to DATA.csv (header naming t, u, y) by least squares
 through the play scan (Levenberg-Marquardt by default), thresholds included, and write
-  DIR/fit.json         thresholds, weights, offset, initial_states, rmse, validation_rmse (with
-                       --validate), the solver's result, plays flagged as not excited, and with
-                       --plays auto the candidates and their scores
+  DIR/fit.json         thresholds, weights, offset, initial_states, rmse (over the fitted
+                       samples), validation_rmse (with --validate), the solver's result, plays
+                       flagged as not excited, and with --plays auto the candidates and scores
   DIR/fit.png          the measured and fitted loops and the residual over time
   DIR/validation.png   the same for --validate VAL.csv
 Thresholds at or above half the input's peak-to-peak range cannot be excited and are flagged.
 --plays auto (the default) picks the number of plays among --candidates by held-out error
 on the last 30 % of the record (or --criterion bic), trying them from the smallest up and
 stopping after two in a row that do not improve the score (a progress bar shows on a terminal
-unless --quiet). Weights are kept positive (so the
+unless --quiet). --fit-from T leaves the samples before time T (a start-up transient, a rest)
+out of the fit and of its RMSE; they still drive the plays. Weights are kept positive (so the
 model can be inverted by `piest compensate`) unless --signed-weights.
 
 example:  piest fit data.csv --plays 4 --validate val.csv --out fitted"""
@@ -89,6 +90,12 @@ def add_arguments(p):
     )
     p.add_argument("--max-steps", type=positive_int, default=100, help="solver steps (default 100)")
     p.add_argument(
+        "--fit-from",
+        type=float,
+        metavar="T",
+        help="fit only the samples at time >= T (earlier ones still drive the plays)",
+    )
+    p.add_argument(
         "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
     )
     add_output_options(p, "piest-fit")
@@ -110,7 +117,17 @@ def run(args) -> int:
         raise CLIError(f"{args.data}: the input u is constant ({rec.u[0]:g}): it excites no play, "
                        "so there is nothing to fit")
     val = load_record(args.validate, resample=args.resample) if args.validate else None
+    mask = None
+    if args.fit_from is not None:
+        if not np.isfinite(args.fit_from):
+            raise CLIError(f"--fit-from must be a finite time, got {args.fit_from}")
+        mask = (rec.t >= args.fit_from).astype(float)
+        if not mask.any():
+            raise CLIError(f"{args.data}: no sample at or after --fit-from {args.fit_from:g} "
+                           f"(the record ends at t = {rec.t[-1]:g})")
+    n_used = rec.n_samples if mask is None else int(mask.sum())
     opts = dict(
+        mask=mask,
         solver=args.solver,
         n_starts=args.starts,
         key=jax.random.key(args.seed),
@@ -124,11 +141,15 @@ def run(args) -> int:
     if args.plays == "auto":
         # A candidate needs 2n + 1 parameters (3n + 1 with fitted states) on the fitted samples.
         per_play = 3 if args.fit_initial_states else 2
-        n_fit = rec.n_samples if args.criterion == "bic" else int(round(0.7 * rec.n_samples))
+        used = np.ones(rec.n_samples) if mask is None else mask
+        if args.criterion == "holdout":
+            used = used * holdout_mask(rec.n_samples, 0.3)
+        n_fit = int(used.sum())
         cands = [c for c in args.candidates if per_play * c + 1 <= n_fit]
         if not cands:
             raise CLIError(
-                f"{args.data}: {rec.n_samples} samples are too few to choose among --candidates "
+                f"{args.data}: {n_used} samples{'' if mask is None else ' from --fit-from on'} "
+                "are too few to choose among --candidates "
                 f"{','.join(map(str, args.candidates))} (each needs {per_play}n + 1 fitted samples)"
             )
         sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, quiet=args.quiet, **opts)
@@ -153,6 +174,8 @@ def run(args) -> int:
             "start_rmse": f.start_rmse,
         },
         "input_half_range": 0.5 * float(np.ptp(rec.u)),
+        "fit_from": args.fit_from,
+        "n_fitted_samples": n_used,
     }
     if selection:
         report["selection"] = selection
@@ -165,8 +188,8 @@ def run(args) -> int:
         written.append(
             _io.save_figure(_figure(val, yv, "validation"), out / "validation.png", dpi=110)
         )
-    written.insert(0, _io.save_figure(_figure(rec, np.asarray(f(rec.u)), "fit"), out / "fit.png",
-                                      dpi=110))
+    written.insert(0, _io.save_figure(_figure(rec, np.asarray(f(rec.u)), "fit", mask),
+                                      out / "fit.png", dpi=110))
     written.insert(0, _io.write_json(out / "fit.json", report))
     if np.any(np.asarray(f.flagged)):
         idx = [int(i) + 1 for i in np.flatnonzero(np.asarray(f.flagged))]
@@ -183,18 +206,27 @@ def _validation_states(args, f, val):
     return val.u[0] if args.initial_states is None else args.initial_states
 
 
-def _figure(rec, ym, what):
+def _figure(rec, ym, what, mask=None):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    used = slice(None) if mask is None else mask > 0
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-    a1.plot(rec.u, rec.y, "k", lw=0.7, label="measured")
-    a1.plot(rec.u, ym, "C1", lw=0.7, label="model")
+    a1.plot(rec.u[used], rec.y[used], "k", lw=0.7, label="measured")
+    a1.plot(rec.u[used], ym[used], "C1", lw=0.7, label="model")
     a1.set(xlabel="input u", ylabel="output y", title=f"{what}: loop")
     a1.legend(fontsize=8)
     a2.plot(rec.t, rec.y - ym, lw=0.6)
-    a2.set(xlabel="time", ylabel="y - model", title=f"residual, RMSE {_rmse(ym, rec.y):.4g}")
+    if mask is not None and not mask.all():
+        a2.axvspan(rec.t[0], rec.t[np.argmax(mask > 0)], color="0.85", label="not fitted")
+        a2.legend(fontsize=8)
+        # Scaled to the fitted samples: a transient left out would otherwise flatten the rest.
+        e = (rec.y - ym)[used]
+        pad = 0.1 * max(np.ptp(e), 1e-12)
+        a2.set_ylim(e.min() - pad, e.max() + pad)
+    rmse = _rmse(ym[used], rec.y[used])
+    a2.set(xlabel="time", ylabel="y - model", title=f"residual, RMSE {rmse:.4g}")
     fig.tight_layout()
     return fig
