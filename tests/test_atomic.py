@@ -102,6 +102,16 @@ def test_a_force_run_failing_at_its_last_file_keeps_the_whole_previous_set(exc, 
 def test_a_signal_during_the_renames_is_delivered_after_them(tmp_path, capsys, monkeypatch):
     # Ctrl-C arriving between two renames must not leave a mix of old and new files: it is held
     # until the whole new set is in place, then reported (exit 130).
+    # A shell starts background jobs (CI scripts run with `&`, `nohup`) with SIGINT ignored, and
+    # the deferred signal is then rightly dropped; a terminal's Ctrl-C reaches Python's handler.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _signal_during_renames(tmp_path, capsys, monkeypatch)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _signal_during_renames(tmp_path, capsys, monkeypatch):
     out = tmp_path / "o"
     assert _sim(capsys, out)[0] == 0
     before = _tree(out)

@@ -174,9 +174,10 @@ def run(args) -> int:
             "start_rmse": f.start_rmse,
         },
         "input_half_range": 0.5 * float(np.ptp(rec.u)),
-        "fit_from": args.fit_from,
         "n_fitted_samples": n_used,
     }
+    if args.fit_from is not None:
+        report["fit_from"] = args.fit_from
     if selection:
         report["selection"] = selection
     written = []
