@@ -302,8 +302,9 @@ def fit_pi(
       one at a time from 2^20.
     - `pad_plays`: solve with arrays for this many plays (at least `n_plays`), the extra ones
       inactive, so that fits with different `n_plays` share one compilation (as
-      [`select_plays`][] does on short records); the result is the same fit up to rounding, at the cost of
-      `pad_plays` plays' work per step. Not with `thresholds0`.
+      [`select_plays`][] does on short records); the result is the same fit up to rounding (a
+      BFGS fit stopped by `max_steps` far from its optimum can amplify that rounding), at the cost
+      of `pad_plays` plays' work per step. Not with `thresholds0`.
 
     **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
     non-finite data, an input with zero range, or more parameters than fitted samples.
