@@ -30,6 +30,7 @@ from ._fit import PIFit, fit_pi
 from ._progress import progress
 
 CRITERIA = ("holdout", "bic")
+HOLDOUT = 0.3  # the default held-out fraction
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +75,7 @@ SHARED_UP_TO = 2**14
 
 def padded_plays(n: int, largest: int, T: int) -> int:
     """The play count candidate `n` is solved with on a record of `T` samples (see above)."""
-    return max(n, largest) if T <= SHARED_UP_TO else n
+    return largest if T <= SHARED_UP_TO else n
 
 
 def select_plays(
@@ -83,7 +84,7 @@ def select_plays(
     candidates=(1, 2, 3, 4, 5, 6, 8, 10),
     *,
     criterion: str = "holdout",
-    holdout: float = 0.3,
+    holdout: float = HOLDOUT,
     tolerance: float = 0.01,
     patience: int | None = 2,
     quiet: bool = True,

@@ -8,7 +8,7 @@ import numpy as np
 from .. import _io
 from .._data import load_record
 from .._fit import SOLVERS, fit_pi
-from .._modelsize import CRITERIA, holdout_mask, select_plays
+from .._modelsize import CRITERIA, HOLDOUT, holdout_mask, select_plays
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "fit"
@@ -143,7 +143,7 @@ def run(args) -> int:
         per_play = 3 if args.fit_initial_states else 2
         used = np.ones(rec.n_samples) if mask is None else mask
         if args.criterion == "holdout":
-            used = used * holdout_mask(rec.n_samples, 0.3)
+            used = used * holdout_mask(rec.n_samples, HOLDOUT)
         n_fit = int(used.sum())
         cands = [c for c in args.candidates if per_play * c + 1 <= n_fit]
         if not cands:
