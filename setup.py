@@ -89,8 +89,8 @@ def _extensions() -> list[Extension]:
         return []
     return [
         Extension(
-            "piest_jax._kernel._play_kernel",
-            sources=["piest_jax/_kernel/play_kernel.cc"],
+            "piest_jax._operators.kernel._play_kernel",
+            sources=["piest_jax/_operators/kernel/play_kernel.cc"],
             include_dirs=[include],
             language="c++",
             extra_compile_args=["-O3", "-g0", "-std=c++17", "-fvisibility=hidden", "-w"],

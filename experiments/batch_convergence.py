@@ -34,7 +34,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import piest_jax as pj  # noqa: E402
-from piest_jax import _io  # noqa: E402
+from piest_jax._cli import output as _io  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results"
 R = np.array([0.0, 10.0 / 3.0, 20.0 / 3.0])

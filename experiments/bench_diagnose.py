@@ -13,7 +13,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax import _hidden  # noqa: E402
+from piest_jax._diagnosis import hidden as _hidden  # noqa: E402
 from piest_jax._cli import main  # noqa: E402
 
 

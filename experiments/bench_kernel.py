@@ -42,8 +42,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from piest_jax import PIOperator
-from piest_jax._io import write_json
-from piest_jax._kernel import available
+from piest_jax._cli.output import write_json
+from piest_jax._operators.kernel import available
 
 N_PLAYS = 32
 

@@ -55,12 +55,13 @@ from jax import lax  # noqa: E402
 # An experiment script, not library code: float64 rows need x64 switched on.
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax import _io, draw_case, draw_keys, make_settings, pe_map, summarise  # noqa: E402
-from piest_jax import _montecarlo  # noqa: E402
-from piest_jax._draw_metrics import draw_statistics  # noqa: E402
-from piest_jax._map_settings import numerical_tolerance  # noqa: E402
-from piest_jax._play import _bank  # noqa: E402
-from piest_jax._window_stats import default_atol, window_stats  # noqa: E402
+from piest_jax import draw_case, draw_keys, make_settings, pe_map, summarise  # noqa: E402
+from piest_jax._cli import output as _io  # noqa: E402
+from piest_jax._excitation import montecarlo as _montecarlo  # noqa: E402
+from piest_jax._excitation.draw_metrics import draw_statistics  # noqa: E402
+from piest_jax._excitation.map_settings import numerical_tolerance  # noqa: E402
+from piest_jax._operators.play import _bank  # noqa: E402
+from piest_jax._excitation.condition import default_atol, window_stats  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 

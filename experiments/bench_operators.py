@@ -133,7 +133,7 @@ def _numba_loops():
 def _kernel_status():
     # The compiled kernel is optional; a missing or unloadable build only drops its rows.
     try:
-        from piest_jax import _kernel
+        from piest_jax._operators import kernel as _kernel
 
         return (True, "") if _kernel.available() else (False, "the compiled kernel was not built")
     except Exception as e:  # an extension built from other sources can fail in many ways

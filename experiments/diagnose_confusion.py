@@ -20,7 +20,9 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax import _diagnose, _effects, _hidden  # noqa: E402
+from piest_jax._diagnosis import diagnose as _diagnose  # noqa: E402
+from piest_jax._diagnosis import effects as _effects  # noqa: E402
+from piest_jax._diagnosis import hidden as _hidden  # noqa: E402
 
 PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", "asymmetry"),
          ("initial_state", "rate_dependence"), ("rate_dependence", "offset_drift")]

@@ -15,7 +15,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from piest_jax._cli import main  # noqa: E402
-from piest_jax._data import builtin_path  # noqa: E402
+from piest_jax._data.record import builtin_path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "experiments" / "results"

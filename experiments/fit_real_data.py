@@ -39,9 +39,9 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax import _io  # noqa: E402
-from piest_jax._data import builtin_path, load_record  # noqa: E402
-from piest_jax._fit import fit_pi, uniform_pi  # noqa: E402
+from piest_jax._cli import output as _io  # noqa: E402
+from piest_jax._data.record import builtin_path, load_record  # noqa: E402
+from piest_jax._identification.fit import fit_pi, uniform_pi  # noqa: E402
 
 OUT = Path(__file__).parent / "results"
 CHANDRA_NOISE = 0.06  # µm, data/README.md

@@ -19,7 +19,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import piest_jax as pj  # noqa: E402
-from piest_jax import _io  # noqa: E402
+from piest_jax._cli import output as _io  # noqa: E402
 
 OUT = Path(__file__).parent / "results"
 R = np.array([0.0, 0.37, 1.13])

@@ -40,8 +40,8 @@ def run(precision: str) -> dict:
     import numpy as np
 
     import piest_jax as pj
-    from piest_jax._data import load_record
-    from piest_jax._fit import fit_pi
+    from piest_jax._data.record import load_record
+    from piest_jax._identification.fit import fit_pi
 
     dtype = jnp.float64 if precision == "float64" else jnp.float32
     pairs = [(su, sy) for su in SCALES for sy in SCALES]
@@ -139,7 +139,7 @@ def main():
             sys.exit(proc.stderr)
         results[precision] = json.loads(proc.stdout.strip().splitlines()[-1])
         print(precision, json.dumps(results[precision]["long_record"]))
-    from piest_jax import _io
+    from piest_jax._cli import output as _io
 
     print(_io.write_json(OUT, results))
 

@@ -1,7 +1,7 @@
 """The paper's Figs. 5 and 6 and the measurement-noise study, into experiments/results/paper/.
 
-Figs. 5 and 6 are the same code as `piest reproduce` (`piest_jax._reproduce`); `noise` is the
-batch Monte Carlo study of `piest_jax._batch.noise_study` (bias and spread of the final estimate
+Figs. 5 and 6 are the same code as `piest reproduce` (`piest_jax._estimation.reproduce`); `noise` is the
+batch Monte Carlo study of `piest_jax._estimation.batch.noise_study` (bias and spread of the final estimate
 against the noise level, and the forgetting-factor trade-off after a weight jump).
 
     python experiments/reproduce_paper.py                 # fig5, fig6 and noise
@@ -17,7 +17,9 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax import _batch, _io, _reproduce  # noqa: E402
+from piest_jax._estimation import batch as _batch  # noqa: E402
+from piest_jax._cli import output as _io  # noqa: E402
+from piest_jax._estimation import reproduce as _reproduce  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "paper"
 

@@ -14,7 +14,7 @@ import matplotlib.figure
 import numpy as np
 import pytest
 
-from piest_jax import _io
+from piest_jax._cli import output as _io
 from piest_jax._cli import COMMANDS, main
 
 SIM = ["--duration", "0.2", "--dt", "0.002", "--quiet"]
@@ -297,7 +297,7 @@ def test_a_command_with_a_non_finite_result_fails_and_writes_nothing(tmp_path, c
 _KILLED_WRITER = textwrap.dedent(
     """
     import os, signal, sys
-    from piest_jax import _io
+    from piest_jax._cli import output as _io
     path, how = sys.argv[1], sys.argv[2]
     _io.write_json(path, {"run": "first", "values": list(range(50))})
     real_fsync = os.fsync

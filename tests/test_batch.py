@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import piest_jax as pj
-from piest_jax._batch import ESTIMATORS, noise_figure, noise_study, run_batch
+from piest_jax._estimation.batch import ESTIMATORS, noise_figure, noise_study, run_batch
 
 R = (0.0, 10 / 3, 20 / 3)
 DT = 1e-3

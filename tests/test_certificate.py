@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import piest_jax as pj
-from piest_jax._certificate import noise_covariance
-from piest_jax._reproduce import CASES, THRESHOLDS
+from piest_jax._estimation.certificate import noise_covariance
+from piest_jax._estimation.reproduce import CASES, THRESHOLDS
 
 DT = 1e-3
 P_MATRIX = np.array([[2e6, 1e5, 0.0], [1e5, 5e5, -2e4], [0.0, -2e4, 1e6]])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from piest_jax._cli import main
-from piest_jax._data import load_record
+from piest_jax._data.record import load_record
 
 import reference as ref
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from piest_jax._data import (
+from piest_jax._data.record import (
     DataError,
     Record,
     builtin_datasets,

@@ -7,9 +7,12 @@ import jax
 import numpy as np
 import pytest
 
-from piest_jax import _diagnose, _effects, _hidden, _locate
+from piest_jax._diagnosis import diagnose as _diagnose
+from piest_jax._diagnosis import effects as _effects
+from piest_jax._diagnosis import hidden as _hidden
+from piest_jax._diagnosis import locate as _locate
 from piest_jax._cli import main
-from piest_jax._data import DataError, Record
+from piest_jax._data.record import DataError, Record
 
 N_SAMPLES = 500
 

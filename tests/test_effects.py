@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import optimize
 
-from piest_jax import _effects, play
+from piest_jax import play
+from piest_jax._diagnosis import effects as _effects
 
 
 def _loop_plays(g, r, x0):

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import piest_jax as pj
-from piest_jax._reproduce import CASES, DEFAULT_P0, THRESHOLDS
+from piest_jax._estimation.reproduce import CASES, DEFAULT_P0, THRESHOLDS
 
 DT = 1e-3
 T = np.arange(1001) * DT

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from piest_jax import _families as F
+from piest_jax._excitation import families as F
 
 T = jnp.arange(800) * 0.01
 N_PLAYS = 5

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import piest_jax as pj
-from piest_jax import _fit
-from piest_jax._modelsize import holdout_mask, padded_plays
+from piest_jax._identification import fit as _fit
+from piest_jax._identification.model_size import holdout_mask, padded_plays
 
 R_TRUE = np.array([0.0, 0.5, 1.2])
 W_TRUE = np.array([1.0, 0.6, 0.4])

@@ -24,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from piest_jax import _diagnose
+from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._cli import COMMANDS, build_parser, main
 from piest_jax._cli import compensate as compensate_cmd
 from piest_jax._cli import fit as fit_cmd

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from piest_jax._data import MIN_SAMPLES, DataError, load_record
+from piest_jax._data.record import MIN_SAMPLES, DataError, load_record
 
 N_ROWS = 16
 

@@ -23,7 +23,7 @@ import pytest
 from hypothesis import given
 
 import piest_jax as pj
-from piest_jax._kernel import _kernel as K
+from piest_jax._operators.kernel import binding as K
 
 import reference as ref
 
@@ -404,10 +404,10 @@ def test_unimportable_extension_in_a_fresh_process():
     code = textwrap.dedent(
         """
         import sys, warnings
-        sys.modules["piest_jax._kernel._play_kernel"] = None
+        sys.modules["piest_jax._operators.kernel._play_kernel"] = None
         import numpy as np
         import piest_jax as pj
-        from piest_jax._kernel import available
+        from piest_jax._operators.kernel import available
         assert not available()
         with warnings.catch_warnings(record=True) as rec:
             warnings.simplefilter("always")

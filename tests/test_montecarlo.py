@@ -14,10 +14,10 @@ import pytest
 from reference import play as ref_play
 
 import piest_jax as pj
-from piest_jax import _montecarlo as M
+from piest_jax._excitation import montecarlo as M
 from piest_jax._cli import main
-from piest_jax._families import FAMILIES, draw_case
-from piest_jax._signals import triangle
+from piest_jax._excitation.families import FAMILIES, draw_case
+from piest_jax._excitation.signals import triangle
 
 SETTINGS = dict(n_samples=600, n_plays=4, window=150, stride=15, dt=0.01)
 N_DRAWS, CHUNK, SEED = 168, 84, 11
@@ -245,7 +245,7 @@ def test_sharded_equals_single_device(pemap, tmp_path):
         import jax, numpy as np
         jax.config.update("jax_enable_x64", True)
         import piest_jax as pj
-        from piest_jax import _montecarlo as M
+        from piest_jax._excitation import montecarlo as M
         assert len(jax.devices()) == 4, jax.devices()
         s = pj.make_settings(**{SETTINGS!r}, dtype="float64")
         fn, sharding = M._engine(s, tuple(jax.devices()))

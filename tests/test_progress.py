@@ -29,7 +29,8 @@ def test_bar_only_on_a_terminal(monkeypatch, tty, quiet, shown):
 def test_diagnose_search_reports_progress_per_round(monkeypatch):
     import jax
 
-    from piest_jax import _diagnose, _hidden
+    from piest_jax._diagnosis import diagnose as _diagnose
+    from piest_jax._diagnosis import hidden as _hidden
 
     rec, _ = _hidden.generate(("delay",), key=jax.random.PRNGKey(3), n_samples=300)
     err = _Terminal()

@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from piest_jax import _effects, _refine
+from piest_jax._diagnosis import effects as _effects
+from piest_jax._diagnosis import refine as _refine
 
 T = 1200
 DT = 1e-3

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from piest_jax._cli import main
-from piest_jax._reproduce import public_report, reproduce, time_to_tolerance
+from piest_jax._estimation.reproduce import public_report, reproduce, time_to_tolerance
 
 FIELDS = ("weights_true", "weights_final", "final_abs_error", "time_to_1pct", "P0", "estimator")
 

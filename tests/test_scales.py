@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import piest_jax as pj
-from piest_jax import _diagnose
-from piest_jax._data import Record
+from piest_jax._diagnosis import diagnose as _diagnose
+from piest_jax._data.record import Record
 
 import reference as ref
 
@@ -180,7 +180,7 @@ def test_diagnosis_accepts_any_scale_and_refuses_flat_signals():
 def test_fit_in_float64_at_extreme_scales():
     # float32 is checked on the long record below (its own process); here the test process's
     # float64. The fit normalises internally and reports in the user's units.
-    from piest_jax._fit import fit_pi
+    from piest_jax._identification.fit import fit_pi
 
     k = np.arange(400)
     uu = np.sin(2 * np.pi * k / 100) * (1 + 0.4 * np.sin(2 * np.pi * k / 430))
@@ -201,8 +201,8 @@ _LONG_RECORD = textwrap.dedent(
     import jax
     jax.config.update("jax_enable_x64", sys.argv[2] == "float64")
     import piest_jax as pj
-    from piest_jax._data import load_record
-    from piest_jax._fit import fit_pi
+    from piest_jax._data.record import load_record
+    from piest_jax._identification.fit import fit_pi
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     rec = load_record(sys.argv[1])
     loaded = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

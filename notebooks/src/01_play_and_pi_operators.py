@@ -40,7 +40,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax import _signals
+from piest_jax._excitation import signals as _signals
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"  # the test suite runs with small sizes
 print("piest_jax", pj.__version__, "| jax", jax.__version__, "| backend", jax.default_backend())

@@ -38,7 +38,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax import _reproduce
+from piest_jax._estimation import reproduce as _reproduce
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"  # the test suite runs with small sizes
 

@@ -44,7 +44,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax._families import FAMILIES
+from piest_jax._excitation.families import FAMILIES
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 N_DRAWS = 1400 if SMALL else 14_000  # a multiple of the 7 families

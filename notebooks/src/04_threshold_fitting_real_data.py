@@ -37,7 +37,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax._data import builtin_path, load_record
+from piest_jax._data.record import builtin_path, load_record
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 STEP = 50 if SMALL else 20  # decimation of the 5 kHz record

@@ -39,8 +39,8 @@ jax.config.update("jax_enable_x64", True)
 import matplotlib.pyplot as plt
 
 import piest_jax as pj
-from piest_jax._data import builtin_path, load_record
-from piest_jax._diagnose import noise_std
+from piest_jax._data.record import builtin_path, load_record
+from piest_jax._diagnosis.diagnose import noise_std
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 # The full search tries every effect; the small run (for the test suite) tries two.

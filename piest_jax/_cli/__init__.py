@@ -9,7 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
-from .. import _io
+from . import output as _io
 from ._common import CLIError
 from . import compensate, diagnose, fit, montecarlo, simulate, reproduce
 

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import _io
-from .._compensate import admissible_states, feedforward
-from .._data import load_columns
-from .._pi import PIOperator
+from . import output as _io
+from .._identification.compensate import admissible_states, feedforward
+from .._data.record import load_columns
+from .._operators.pi import PIOperator
 from ._common import CLIError, add_output_options
 
 NAME = "compensate"

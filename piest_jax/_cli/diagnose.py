@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from .. import _io
-from .._data import load_record
-from .._effects import EFFECTS
+from . import output as _io
+from .._data.record import load_record
+from .._diagnosis.effects import EFFECTS
 from ._common import CLIError, add_output_options
 
 NAME = "diagnose"
@@ -48,7 +48,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from .._diagnose import check_record, diagnose
+    from .._diagnosis.diagnose import check_record, diagnose
 
     cands = [c.strip() for c in args.candidates.split(",") if c.strip()]
     bad = [c for c in cands if c not in EFFECTS]

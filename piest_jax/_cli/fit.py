@@ -5,10 +5,10 @@ import sys
 
 import numpy as np
 
-from .. import _io
-from .._data import load_record
-from .._fit import SOLVERS, fit_pi
-from .._modelsize import CRITERIA, HOLDOUT, holdout_mask, select_plays
+from . import output as _io
+from .._data.record import load_record
+from .._identification.fit import SOLVERS, fit_pi
+from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select_plays
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "fit"

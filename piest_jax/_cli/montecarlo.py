@@ -3,11 +3,11 @@
 import jax
 import numpy as np
 
-from .. import _io
-from .._families import FAMILIES
-from .._map_report import summarise
-from .._map_settings import make_settings, numerical_tolerance
-from .._montecarlo import pe_map
+from . import output as _io
+from .._excitation.families import FAMILIES
+from .._excitation.map_report import summarise
+from .._excitation.map_settings import make_settings, numerical_tolerance
+from .._excitation.montecarlo import pe_map
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "montecarlo"

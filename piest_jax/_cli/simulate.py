@@ -2,9 +2,10 @@
 
 import numpy as np
 
-from .. import _io, _signals
-from .._data import load_record
-from .._pi import PIOperator
+from . import output as _io
+from .._excitation import signals as _signals
+from .._data.record import load_record
+from .._operators.pi import PIOperator
 from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
 
 NAME = "simulate"

@@ -1,0 +1,388 @@
+"""Name the effects a plain PI model misses: fit, score candidates on held-out blocks, repeat.
+
+The loop: fit the base PI model (offset, relaxed initial states); for every effect not yet in the
+model, add it and fit it over its grid of nonlinear parameters (`_effects`), and measure the
+error on held-out blocks by blocked cross-validation (contiguous blocks, folds interleaved, the
+model running through every block so states carry across). The best candidate is named only if
+its held-out gain, less a charge per parameter, is large against the noise floor and a real share
+of the remaining error; then the loop repeats on what remains, and effects that a later one made
+redundant are dropped again. Long records are sub-sampled for the search; the model's time
+constants and delay are physical, so the chosen model is then fitted and evaluated at full rate.
+Finally the plain and the chosen model are refined jointly, every parameter at once, by optimistix
+least squares (`_refine`), the machinery of `fit_pi`; a refinement is kept only when it lowers the
+full-rate error.
+"""
+
+import itertools
+import math
+
+import numpy as np
+
+from . import effects as _effects
+from . import locate as _locate
+from . import refine as _refine
+from .._data.record import Record
+from .effects import EFFECTS
+from .._progress import progress
+from .scaling import Scaling as Scaling
+from .scaling import check_record as check_record
+from .scaling import noise_std as noise_std
+from .scaling import prepared as prepared
+from .scaling import scaling_of as scaling_of
+
+SEARCH_SAMPLES = 2048
+REFINE_SAMPLES = 10_000
+# Naming thresholds: the held-out MSE gain, less PARAM_PENALTY sigma^2 per parameter per sample,
+# must exceed MIN_GAIN_NOISE sigma^2 and MIN_GAIN_REL of the current held-out MSE. A gain below
+# about sigma^2 is what an imperfect form of the first effect leaves for a second one to pick up,
+# and it moves the RMSE by less than the 1.5x-noise tolerance a model is judged by.
+MIN_GAIN_NOISE = 1.2
+MIN_GAIN_REL = 0.03
+PARAM_PENALTY = 2.0
+MAX_EFFECTS = 3
+# A first effect that leaves a held-out RMSE above STUCK_NOISE x the noise, with no single
+# addition significant, is retried as pairs (`_pair_restart`).
+STUCK_NOISE = 2.0
+
+
+def _fit_many(p, cfg, effect, values):
+    """Each grid value of `effect` added to `cfg`: (held-out MSE, value) of the best one."""
+    play_side = effect in ("initial_state", "rate_dependence", "asymmetry")
+    H = None if play_side else _effects.play_columns(p, cfg)
+    if effect == "initial_state":
+        # All histories at once: one pass of the plays with a batch of initial states.
+        g, r = _effects.play_inputs(p, cfg)
+        Hs = _effects.plays(g, r, np.stack([_effects.history_states(g[0], tr) for tr in values]))
+
+    def sse(q, i):
+        c = {**cfg, effect: q}
+        f = _effects.fit(p, c, X=_effects.linear_part(p, c, Hs[i] if effect == "initial_state" else H))
+        return float(np.sum((f.A @ f.w - f.target) ** 2)), f
+
+    def cv(b):
+        return _effects.cv_mse(p, b[1].A, {**cfg, effect: b[2]}, b[1].target)[0]
+
+    # The grid is searched by the fitting error, and the few best values are scored on held-out
+    # blocks: a value that fits better by bending where the data are sparse (a start-up
+    # transient, one extreme excursion) does not predict the blocks it did not see.
+    coarse = sorted(((*sse(q, i), q) for i, q in enumerate(values)), key=lambda b: b[0])[:3]
+    best_cv, best = min(((cv(b), b) for b in coarse), key=lambda c: c[0])
+    start = best
+    for level in range(4):
+        # A local refinement below the grid's spacing (a pattern search, moving while it gains):
+        # the chosen model should fit as well as the effect's form allows, or the gap left
+        # would be taken for a second effect.
+        for _ in range(4):
+            near = [(*sse(q, None), q) for q in _effects.neighbours(effect, best[2], level)]
+            new = min([best, *near], key=lambda b: b[0])
+            if new[2] is best[2]:
+                break
+            best = new
+    if best is not start:
+        refined = cv(best)
+        if refined < best_cv:
+            return refined, best[2]
+    return best_cv, start[2]
+
+
+def _cv(p, cfg):
+    f = _effects.fit(p, cfg)
+    return _effects.cv_mse(p, f.A, cfg, f.target)[0]
+
+
+def _significant(gain, n_params, cur_mse, sigma2, n):
+    score = (gain - PARAM_PENALTY * sigma2 * n_params / n) / sigma2
+    return score, bool(score > MIN_GAIN_NOISE and gain > MIN_GAIN_REL * cur_mse)
+
+
+def _revisit(p, cfg, named, candidates, cur):
+    """Re-choose each named effect given the others (one backfitting pass).
+
+    An effect named while a second one was still unmodelled may have been the best stand-in for
+    the pair (a lag for a delay seen through a saturation); with the second in place, the first
+    is chosen again among all candidates, its own form and parameters included, and then the
+    second given the new first.
+    """
+    for sweep in range(4):
+        before = cur
+        for e in list(named):
+            rest = {k: v for k, v in cfg.items() if k != e}
+            best = (cur, e, cfg[e])
+            # The first sweep may swap effects; later ones re-fit each effect's own parameters
+            # given the others (coordinate descent: a delay and an envelope trade off).
+            for c in candidates if sweep == 0 else [e]:
+                if c in rest:
+                    continue
+                mse, q = _fit_many(p, rest, c, _effects.grid(c, p))
+                if mse < best[0]:
+                    best = (mse, c, q)
+            named = [best[1] if x == e else x for x in named]
+            cfg, cur = {**rest, best[1]: best[2]}, best[0]
+        if sweep > 0 and cur > 0.99 * before:
+            break
+    return cfg, named, cur
+
+
+def _pair_restart(p, first, cur, sigma2, n):
+    """Pairs of the first round's three best candidates, each fitted from the plain model.
+
+    One effect chosen first can absorb two (a resonant lag standing in for a delay seen
+    through an output nonlinearity) and leave a residual far above the noise that no single
+    addition reduces. The pair that explains the record best replaces it if it is better by a
+    significant margin; otherwise None.
+    """
+    top = sorted(first, key=lambda k: -first[k]["score"])[:3]
+    best = None
+    for a, b in itertools.combinations(top, 2):
+        cfg = {a: first[a]["value"]}
+        mse, q = _fit_many(p, cfg, b, _effects.grid(b, p))
+        cfg, named, mse = _revisit(p, {**cfg, b: q}, [a, b], [a, b], mse)
+        if best is None or mse < best[2]:
+            best = (cfg, named, mse)
+    gain_ok = best is not None and _significant(cur - best[2], 0, cur, sigma2, n)[1]
+    return best if gain_ok else None
+
+
+def _prune(p, cfg, named, sigma2):
+    """Drop a named effect that a later one made redundant (backward elimination).
+
+    A lag can stand in for a delay, slow creep for a drift: when the model without the earlier
+    effect is as good on held-out blocks, that effect is dropped.
+    """
+    pruned = []
+    while len(named) > 1:
+        cur = _cv(p, cfg)
+        for e in named:
+            rest = {k: v for k, v in cfg.items() if k != e}
+            loss = _cv(p, rest) - cur
+            if not _significant(loss, _effects.N_PARAMS[e], cur, sigma2, len(p.y))[1]:
+                cfg, named = rest, [x for x in named if x != e]
+                pruned.append(e)
+                break
+        else:
+            break
+    return cfg, named, pruned
+
+
+def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, refit: bool = True,
+           solver: str | None = "lm", quiet: bool = True):
+    """Run the naming loop on one identification record.
+
+    **Arguments:**
+
+    - `rec`: the record (checked with `check_record`).
+    - `max_effects`: stop after naming this many.
+    - `candidates`: the effects to consider.
+    - `refit`: fit the final weights on the full-rate record (otherwise on the search's samples).
+    - `solver`: refine the base and the final model jointly with this optimistix solver
+      (`_refine.refine`: `"lm"`, `"gn"` or `"bfgs"`), or None to keep the variable-projection fit.
+    - `quiet`: no progress bar (it shows only on a terminal anyway).
+
+    **Returns:** a dict with `effects` (named, in order), `pruned`, `rounds` (each candidate's
+    held-out RMSE and score per round), `model_base` and `model_final` (configuration,
+    weights and, with a `solver`, how the refinement went and which fit was kept), `scaling`,
+    `noise_std` and the held-out RMSEs (in the data's units).
+    """
+    candidates = list(candidates)
+    for c in candidates:
+        if c not in EFFECTS:
+            raise ValueError(f"unknown effect {c!r}; choose from {EFFECTS}")
+    if solver is not None and solver not in _refine.SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {_refine.SOLVERS} or None")
+    check_record(rec)
+    sc = scaling_of(rec)
+    step = int(math.ceil(rec.n_samples / SEARCH_SAMPLES))
+    p = prepared(rec, sc, step=step, folds=True)
+    n = len(p.y)
+    sigma = noise_std(rec.y) / sc.y_half
+    sigma2 = max(sigma**2, 1e-12)
+    cfg, named, rounds = {}, [], []
+    first, restarted = {}, False
+    base_mse = cur = _cv(p, cfg)
+    while len(named) < max_effects:
+        scores = {}
+        todo = [c for c in candidates if c not in named]
+        for c in progress(todo, desc=f"diagnose, round {len(rounds) + 1}", quiet=quiet):
+            mse, q = _fit_many(p, cfg, c, _effects.grid(c, p))
+            score, ok = _significant(cur - mse, _effects.N_PARAMS[c], cur, sigma2, n)
+            scores[c] = dict(heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score),
+                             significant=ok, value=q, mse=mse)
+        if not scores:
+            break
+        best = max(scores, key=lambda k: scores[k]["score"])
+        ok = scores[best]["significant"]
+        rounds.append(dict(
+            current_heldout_rmse=float(np.sqrt(cur)) * sc.y_half,
+            candidates={k: {kk: v[kk] for kk in ("heldout_rmse", "score", "significant")}
+                        for k, v in scores.items()},
+            best=best, named=ok, parameters=_describe(best, scores[best]["value"]),
+        ))
+        if len(rounds) == 1:
+            first = scores
+        if not ok:
+            if len(named) == 1 and cur > STUCK_NOISE**2 * sigma2 and max_effects > 1 and not restarted:
+                restarted = True
+                alt = _pair_restart(p, first, cur, sigma2, n)
+                if alt is not None:
+                    cfg, named, cur = alt
+                    rounds[-1]["pair_restart"] = list(named)
+                    continue
+            break
+        named.append(best)
+        cfg = {**cfg, best: scores[best]["value"]}
+        cur = scores[best]["mse"]
+        if len(named) > 1:
+            cfg, named, cur = _revisit(p, cfg, named, candidates, cur)
+            rounds[-1]["effects_after_revisit"] = list(named)
+    cfg, named, pruned = _prune(p, cfg, named, sigma2)
+    cfg = {k: cfg[k] for k in named}
+    final_mse = _cv(p, cfg)
+    full = prepared(rec, sc) if refit else p
+    # The joint refinement costs a Jacobian per step; on long records it runs on every k-th
+    # sample (the parameters are physical, so the model carries over to the full rate) and is
+    # kept only if it also lowers the error at the full rate.
+    thin = prepared(rec, sc, step=int(math.ceil(len(full.y) / REFINE_SAMPLES))) if refit else p
+    models = {}
+    for label, c in (("model_base", {}), ("model_final", cfg)):
+        f = _effects.fit(full, c)
+        # Both models get the same joint refinement, so the comparison stays fair.
+        models[label] = (dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None
+                         else _refined(full, thin, c, f, solver))
+    return dict(
+        effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=sigma * sc.y_half,
+        step=step, heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
+        heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half, **models,
+    )
+
+
+def _refined(full, thin, cfg, f, solver):
+    """The best of the grid fit, its joint refinement, and the refined parameters' exact weights.
+
+    The solver moves every parameter at once but, through the positivity transform, slowly
+    moves weights that sit at zero; the variable-projection fit at the refinement's nonlinear
+    parameters gives those weights exactly. All three are judged at the full rate.
+    """
+    def mse(pred):
+        return float(np.mean((pred - full.y) ** 2))
+
+    def vp_model(c, g):
+        return dict(cfg=c, coef=g.w, coef_v=g.w_v, norm=g.norm)
+
+    ref = _refine.refine(thin, cfg, f.w, f.norm, solver=solver)
+    options = [("grid", mse(_effects.predict(full, cfg, f.w, f.w_v, f.norm)), vp_model(cfg, f))]
+    if ref.accepted:
+        refined = dict(vp_model(cfg, f), cfg=ref.cfg, refined=ref)
+        options.append(("solver", mse(_refine.predict(ref, full, f.norm)), refined))
+        if ref.cfg != cfg:
+            g = _effects.fit(full, ref.cfg)
+            pred = _effects.predict(full, ref.cfg, g.w, g.w_v, g.norm)
+            options.append(("solver_then_weights", mse(pred), vp_model(ref.cfg, g)))
+    kept, best, model = min(options, key=lambda o: o[1] if np.isfinite(o[1]) else np.inf)
+    model["refinement"] = dict(result=ref.result, steps=ref.steps, kept=kept,
+                               rmse_start=float(np.sqrt(options[0][1])), rmse=float(np.sqrt(best)))
+    return model
+
+
+def _refinement(model, sc):
+    """How the joint optimistix refinement of a model went (RMSEs in the data's units)."""
+    r = model["refinement"]
+    return dict(r, rmse_start=r["rmse_start"] * sc.y_half, rmse=r["rmse"] * sc.y_half)
+
+
+def _describe(effect, q):
+    """The chosen grid parameters of an effect in words (JSON-ready)."""
+    if effect == "delay":
+        return {"delay_s": float(q)}
+    if effect == "linear_dynamics":
+        if q[0] == "first":
+            return {"order": 1, "tau_s": float(q[1])}
+        return {"order": 2, "omega_rad_s": float(q[1]), "zeta": float(q[2])}
+    if effect == "rate_dependence":
+        return {"form": "r (1 + k rho^p)" if q[0] == "scale" else "r + k rho^p", "k": q[1], "p": q[2]}
+    if effect == "initial_state":
+        return {"history_turning_points_normalised_input": [float(a) for a in q]}
+    if effect == "asymmetry":
+        return {"input_envelope_b": float(q)}
+    if effect == "creep":
+        return {"time_constants_s": [float(v) for v in q]}
+    return {}
+
+
+def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False):
+    """Run a fitted model on a record at full rate; returns (prediction in data units, RMSE).
+
+    **Arguments:**
+
+    - `rec`: the record; `sc`: the identification record's `Scaling`.
+    - `model`: `search(...)["model_base"]` or `["model_final"]`.
+    - `transferable_only`: for another record, switch off what is tied to the identification
+      record itself (its plays' initial states and its drift over time).
+
+    **Returns:** `(prediction, rmse)`.
+    """
+    if model.get("refined") is not None:
+        pred = _refine.predict(model["refined"], prepared(rec, sc), model["norm"],
+                               transferable_only=transferable_only)
+        pred = pred * sc.y_half + sc.y_mid
+        return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
+    cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
+    if transferable_only:
+        cfg.pop("initial_state", None)
+        if cfg.pop("offset_drift", None) is not None:
+            w = w[: len(w) - _effects.N_DRIFT]
+    pred = _effects.predict(prepared(rec, sc), cfg, w, np.asarray(model["coef_v"]), model["norm"])
+    pred = pred * sc.y_half + sc.y_mid
+    return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
+
+
+def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
+    """The whole workflow on one record: locate, name, and show the gap shrink.
+
+    **Arguments:**
+
+    - `rec`: the identification record.
+    - `validation`: an optional second record of the same device, run through both models.
+    - `**kwargs`: passed to `search` (`max_effects`, `candidates`, `solver`, `quiet`, ...).
+
+    **Returns:** a JSON-ready dict with `effects`, `baseline_rmse`, `final_rmse`,
+    `noise_std_estimate`, `candidates`, `parameters` (of the named effects, after refinement),
+    `refinement` (solver result, steps, RMSE before and after, for both models), `rounds`,
+    `where`, `heldout` and, with a validation record,
+    `validation` (`baseline_rmse`, `final_rmse`); arrays for plotting are under `_arrays`.
+    """
+    s = search(rec, **kwargs)
+    sc, named = s["scaling"], s["effects"]
+    pred_b, rmse_b = evaluate(rec, sc, s["model_base"])
+    pred_f, rmse_f = evaluate(rec, sc, s["model_final"])
+    first = s["rounds"][0]["candidates"] if s["rounds"] else {}
+    out = dict(
+        effects=named,
+        baseline_rmse=rmse_b,
+        final_rmse=rmse_f,
+        noise_std_estimate=s["noise_std"],
+        candidates={k: dict(v) for k, v in first.items()},
+        parameters={e: _describe(e, s["model_final"]["cfg"][e]) for e in named},
+        refinement={k: _refinement(s[k], sc) for k in ("model_base", "model_final") if "refinement" in s[k]},
+        rounds=s["rounds"],
+        pruned=s["pruned"],
+        heldout=dict(baseline_rmse=s["heldout_rmse_base"], final_rmse=s["heldout_rmse_final"]),
+        n_samples=rec.n_samples,
+        search_step=s["step"],
+        where=_locate.locate(rec.t, rec.u, rec.y, pred_b, s["noise_std"]),
+    )
+    arrays = dict(t=rec.t, u=rec.u, y=rec.y, base=pred_b, final=pred_f)
+    if validation is not None:
+        check_record(validation)
+        vb, rb = evaluate(validation, sc, s["model_base"], transferable_only=True)
+        vf, rf = evaluate(validation, sc, s["model_final"], transferable_only=True)
+        out["validation"] = dict(
+            baseline_rmse=rb, final_rmse=rf, noise_std_estimate=noise_std(validation.y),
+            # The same with each model's mean residual removed: a sensor zero that moved
+            # between the two runs is no failure of either model.
+            baseline_rmse_offset_removed=float(np.std(validation.y - vb)),
+            final_rmse_offset_removed=float(np.std(validation.y - vf)),
+            effects_used=[e for e in named if e not in ("initial_state", "offset_drift")],
+        )
+        arrays.update(val_t=validation.t, val_u=validation.u, val_y=validation.y, val_base=vb, val_final=vf)
+    out["_arrays"] = arrays
+    return out

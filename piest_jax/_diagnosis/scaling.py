@@ -1,0 +1,135 @@
+"""A record as the diagnosis sees it: checked, its noise floor, and in normalised units.
+
+Input and output are scaled to [-1, 1] by the identification record's own ranges, and the same
+constants are reused for a validation record, so that one fitted model applies to both. The
+rate scale, the dominant period and the sampling step set the grids of the effects' parameters.
+"""
+
+import dataclasses
+
+import numpy as np
+from scipy import signal as _signal
+
+from . import effects as _effects
+from .._data.record import DataError, Record
+
+MIN_SAMPLES = 200
+N_BLOCKS = 64
+N_FOLDS = 4
+
+
+def noise_std(y) -> float:
+    """The noise floor: a robust std of the residual of a local cubic fit over 7 samples.
+
+    The local cubic (Savitzky-Golay) follows the signal, loops and reversals included, so the
+    residual is noise: for white noise of std sigma its variance is sigma^2 (1 - h0), with h0 the
+    smoother's central weight; the median absolute deviation ignores the few samples at kinks.
+
+    **Arguments:** `y`, a sampled signal (T,).
+
+    **Returns:** the estimated noise std.
+    """
+    y = np.asarray(y, float)
+    r = y - _signal.savgol_filter(y, 7, 3, mode="interp")
+    h0 = _signal.savgol_coeffs(7, 3)[3]
+    mad = np.median(np.abs(r - np.median(r)))
+    return float(1.4826 * mad / np.sqrt(1 - h0))
+
+
+@dataclasses.dataclass(frozen=True)
+class Scaling:
+    """The normalisation of one identification record, reused for validation records."""
+
+    u_mid: float
+    u_half: float
+    y_mid: float
+    y_half: float
+    rate_scale: float
+    omega_ref: float
+    period: float
+    delay_unit: float
+
+
+def check_record(rec: Record) -> None:
+    """Refuse records the diagnosis cannot use, with a message naming the problem.
+
+    **Arguments:** `rec`, a `Record`.
+
+    **Returns:** nothing; raises `DataError` for too few samples, NaN/inf, an input with no
+    excitation or a constant output.
+    """
+    src = rec.source
+    if rec.n_samples < MIN_SAMPLES:
+        raise DataError(f"{src}: too short: {rec.n_samples} samples, the diagnosis needs {MIN_SAMPLES}")
+    for name, col in (("t", rec.t), ("u", rec.u), ("y", rec.y)):
+        bad = ~np.isfinite(col)
+        if bad.any():
+            raise DataError(
+                f"{src}: column `{name}` has {int(bad.sum())} NaN/inf values "
+                f"(first at row {int(np.argmax(bad))}); remove or fill them"
+            )
+    if not np.all(np.diff(rec.t) > 0):
+        raise DataError(f"{src}: time stamps are not strictly increasing")
+    du = np.ptp(rec.u)
+    if du <= 1e-9 * np.max(np.abs(rec.u)):
+        raise DataError(f"{src}: no excitation: the input u is constant, nothing can be identified")
+    un = (rec.u - rec.u.min()) / du
+    if _reversals(un) < 2:
+        raise DataError(
+            f"{src}: no excitation: the input never reverses direction, so no hysteresis loop "
+            "is traced; record at least one rise and fall"
+        )
+    if np.ptp(rec.y) <= 1e-9 * np.max(np.abs(rec.y)):
+        raise DataError(f"{src}: constant output: y does not change, there is nothing to model")
+
+
+def _reversals(un, frac=0.05):
+    """Direction changes of a signal in [0, 1] larger than `frac` (a hysteresis counter)."""
+    count, ext, direction = 0, un[0], 0
+    for v in un[:: max(1, len(un) // 20000)]:
+        if direction == 0:
+            if abs(v - ext) > frac:
+                direction, ext = (1 if v > ext else -1), v
+        elif direction * (v - ext) > 0:
+            ext = v
+        elif direction * (ext - v) > frac:
+            count, direction, ext = count + 1, -direction, v
+    return count
+
+
+def scaling_of(rec: Record) -> Scaling:
+    """The normalisation constants of an identification record.
+
+    **Arguments:** `rec`, the record.
+
+    **Returns:** a `Scaling`.
+    """
+    u_mid, u_half = 0.5 * (rec.u.max() + rec.u.min()), 0.5 * np.ptp(rec.u)
+    y_mid, y_half = 0.5 * (rec.y.max() + rec.y.min()), 0.5 * np.ptp(rec.y)
+    rate = np.abs(np.gradient((rec.u - u_mid) / u_half, rec.t))
+    rate_scale = float(np.percentile(rate, 90)) or float(rate.max())
+    duration = float(rec.t[-1] - rec.t[0])
+    f_dom = max(_reversals((rec.u - rec.u.min()) / np.ptp(rec.u)) / 2, 1.0) / duration
+    return Scaling(
+        float(u_mid), float(u_half), float(y_mid), float(y_half), rate_scale,
+        float(2 * np.pi * 10 * f_dom), float(1 / f_dom), rec.dt,
+    )
+
+
+def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) -> _effects.Prepared:
+    """A record in the identification record's normalised units, optionally sub-sampled.
+
+    **Arguments:** `rec`; `sc`, the identification record's `Scaling`; `step`, keep every
+    `step`-th sample; `folds`, assign the samples to interleaved cross-validation folds of
+    contiguous blocks.
+
+    **Returns:** an `_effects.Prepared`.
+    """
+    u = ((rec.u - sc.u_mid) / sc.u_half)[::step]
+    y = ((rec.y - sc.y_mid) / sc.y_half)[::step]
+    t = rec.t[::step]
+    f = None
+    if folds:
+        blocks = np.minimum((np.arange(len(u)) * N_BLOCKS) // len(u), N_BLOCKS - 1)
+        f = blocks % N_FOLDS
+    return _effects.Prepared(u, y, t, sc.rate_scale, sc.period, f)

@@ -1,0 +1,152 @@
+"""The Monte Carlo PE map engine: a batch of PRNG keys, chunked, sharded over devices.
+
+One draw is one PRNG key: it fixes an input family and its parameters, a threshold set, initial
+play states and true weights (see `_families.py`); `draw_statistics` (`_draw_metrics.py`) turns
+it into the map's quantities. The batch runs as one jitted computation per chunk of keys, with
+the key axis sharded over every JAX device through a one-axis `Mesh` and `NamedSharding`.
+"""
+
+import functools
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from .draw_metrics import draw_statistics
+from .families import draw_case
+from .map_settings import MapSettings
+from .._progress import progress
+
+_DRAWS_PER_STEP = 1
+
+
+def draw_keys(key, start: int, count: int):
+    """Keys of draws start, ..., start + count − 1: draw i is fold_in(key, i), whatever the batch.
+
+    **Arguments:** `key`, a PRNG key; `start`, the first draw number; `count`, how many.
+
+    **Returns:** (count,) keys.
+    """
+    return jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(start, start + count))
+
+
+def draw_family(index, settings: MapSettings):
+    """The family (index into `FAMILIES`) of draw number `index`: the families take turns.
+
+    **Arguments:** `index`, draw numbers (an int or an array); `settings` of the map.
+
+    **Returns:** family indices, shaped like `index`.
+    """
+    return np.asarray(settings.families)[np.asarray(index) % len(settings.families)]
+
+
+def _local_batch(keys, settings: MapSettings, loop: bool = True) -> dict:
+    """Statistics of a batch of keys whose first draw number is a multiple of the family count.
+
+    `loop`: one draw at a time (for CPUs), else one `vmap` over the batch (for accelerators).
+    """
+    s = settings
+    nf = len(s.families)
+    t = jnp.arange(s.n_samples, dtype=jnp.dtype(s.dtype)) * jnp.asarray(s.dt, s.dtype)
+    by_family = keys.reshape(-1, nf)
+    cases = [
+        jax.vmap(lambda k, f=f: draw_case(k, f, t, s.n_plays))(by_family[:, j])
+        for j, f in enumerate(s.families)
+    ]
+    # Interleave back so row i of the result is draw i of the batch.
+    u, r, x0, w = (jnp.stack(parts, axis=1).reshape((keys.shape[0],) + parts[0].shape[1:])
+                   for parts in zip(*cases))
+    stats = functools.partial(draw_statistics, settings=s)
+    if loop:
+        # One draw at a time rather than one vmap over the batch: a draw's play outputs (T, n)
+        # then stay in cache through every windowed statistic instead of streaming the whole
+        # batch's from memory once per statistic (2 to 3 times less work on a CPU), and each
+        # eigensolver call gets one matrix, which the CPU solver runs inline (see
+        # `draw_statistics`). An accelerator wants the whole batch at once instead.
+        out = lax.map(lambda case: stats(*case), (u, r, x0, w), batch_size=_DRAWS_PER_STEP)
+    else:
+        out = jax.vmap(stats)(u, r, x0, w)
+    out["thresholds"] = r
+    return out
+
+
+def mesh_sharding(devices) -> NamedSharding:
+    """The sharding the engine puts the keys under: one mesh axis, "batch", over `devices`.
+
+    **Arguments:** `devices`, a sequence of JAX devices (e.g. `jax.devices()`).
+
+    **Returns:** a `NamedSharding` over a one-axis `Mesh`, splitting the leading axis.
+    """
+    return NamedSharding(Mesh(np.asarray(tuple(devices)), ("batch",)), PartitionSpec("batch"))
+
+
+@functools.lru_cache(maxsize=16)
+def _engine(settings: MapSettings, devices: tuple):
+    sharding = mesh_sharding(devices)
+    # shard_map keeps every device on its own slice of keys, also through the compiled play
+    # kernel, which the automatic partitioner could not split.
+    loop = all(d.platform == "cpu" for d in devices)
+    fn = jax.shard_map(
+        functools.partial(_local_batch, settings=settings, loop=loop),
+        mesh=sharding.mesh,
+        in_specs=sharding.spec,
+        out_specs=sharding.spec,
+    )
+    return jax.jit(fn, in_shardings=sharding, out_shardings=sharding), sharding
+
+
+def pe_map(
+    key,
+    n_draws: int,
+    settings: MapSettings,
+    *,
+    chunk: int = 1000,
+    start: int = 0,
+    devices=None,
+    quiet: bool = False,
+) -> dict:
+    """Run the Monte Carlo map: `n_draws` draws, `chunk` at a time, sharded over `devices`.
+
+    **Arguments:**
+
+    - `key`: a PRNG key; draw i uses `fold_in(key, i)` and family `draw_family(i)`, so results do
+      not depend on `chunk` or on the number of devices.
+    - `n_draws`: number of draws, >= 1.
+    - `settings`: from [`make_settings`][].
+    - `chunk`: draws per jitted call (bounds memory); rounded up to a multiple of the device count
+      times the number of families.
+    - `start`: the number of the first draw, a multiple of the number of families: a long map
+      can be split over runs or hosts (draws start, ..., start + n_draws − 1).
+    - `devices`: the devices to shard over (default all of `jax.devices()`).
+    - `quiet`: no progress bar.
+
+    **Returns:** a dict of NumPy arrays with a leading axis of `n_draws` (see
+    [`draw_statistics`][]), plus `seconds`, the wall time including compilation.
+    """
+    for name, v in (("n_draws", n_draws), ("chunk", chunk)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+            raise ValueError(f"`{name}` must be a positive whole number, got {v!r}")
+    if not isinstance(settings, MapSettings):
+        raise ValueError("`settings` must come from make_settings(...)")
+    nf = len(settings.families)
+    if isinstance(start, bool) or not isinstance(start, int | np.integer) or start % nf or start < 0:
+        raise ValueError(f"`start` must be a non-negative multiple of {nf} (the families), got {start!r}")
+    devices = tuple(jax.devices() if devices is None else devices)
+    unit = len(devices) * nf
+    chunk = -(-min(chunk, n_draws) // unit) * unit
+    fn, sharding = _engine(settings, devices)
+    start_time = time.perf_counter()
+    parts = []
+    offsets = range(0, n_draws, chunk)
+    for offset in progress(offsets, total=len(offsets), desc="PE map", quiet=quiet):
+        # The last chunk is padded to the full size so every call reuses one compiled program.
+        keys = jax.device_put(draw_keys(key, start + offset, chunk), sharding)
+        out = jax.device_get(fn(keys))
+        parts.append({k: v[: n_draws - offset] for k, v in out.items()})
+    result = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    result["family"] = draw_family(start + np.arange(n_draws), settings)
+    result["seconds"] = time.perf_counter() - start_time
+    return result

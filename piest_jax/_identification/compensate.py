@@ -1,0 +1,142 @@
+"""Feedforward hysteresis compensation with the inverse of a fitted PI model.
+
+For a model y = P[u] + c with P a PI operator (r_1 = 0, positive cumulative weights), the input that
+makes the model follow a desired output y_d is u = P⁻¹[y_d - c], with P⁻¹ the analytic inverse
+([`inverse`][]). Applied to the real plant, whatever the model misses (error in the thresholds or
+weights, effects outside the PI class) stays as tracking error; what the model captures is removed.
+
+The comparison without compensation is the best linear feedforward: the straight line
+u = (y_d - b)/a, where y ≈ a u + b is the least-squares line through the model's own (u, y_d) pairs,
+i.e. what an engineer who ignores hysteresis but knows the gain and offset would apply.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .. import _checks
+from .._custom_types import Scalar, Signal, SignalLike
+from .fit import PIFit
+from .._operators.pi import inverse
+from .._operators.pi import PIOperator
+
+
+def admissible_states(thresholds, states) -> Array:
+    """The nearest states, play by play, that some input history can produce.
+
+    Admissible states satisfy |x_{i+1} - x_i| <= r_{i+1} - r_i; each x_{i+1} is clamped into the
+    band around the (already admissible) x_i. Fitted initial states need not be admissible; the
+    inverse's states are only defined for admissible ones.
+
+    **Arguments:** `thresholds` (n,), increasing; `states` (n,).
+
+    **Returns:** (n,) admissible states, equal to `states` when they already are.
+    """
+    r = jnp.asarray(thresholds)
+    x = jnp.broadcast_to(jnp.asarray(states, r.dtype), r.shape)
+    out = [x[0]]
+    for i in range(1, r.shape[0]):
+        d = r[i] - r[i - 1]
+        out.append(jnp.clip(x[i], out[-1] - d, out[-1] + d))
+    return jnp.stack(out)
+
+
+def _check_range(c, desired) -> None:
+    """Name overflow of the desired output less the offset (the inverse checks its own range)."""
+    if not (_checks.is_concrete(c) and _checks.is_concrete(desired)):
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = np.asarray(desired, np.float64) - float(c)
+    if not np.all(np.isfinite(v)):
+        raise ValueError(
+            f"the desired output less the offset {float(c):.3g} overflows float64; rescale the "
+            "model's and the data's units"
+        )
+
+
+def _model(model, offset):
+    if isinstance(model, PIFit):
+        op = PIOperator(model.thresholds, model.weights, model.initial_states)
+        c = model.offset if offset is None else offset
+    elif isinstance(model, PIOperator):
+        op, c = model, 0.0 if offset is None else offset
+    else:
+        raise ValueError(f"`model` must be a PIFit or a PIOperator, got {type(model).__name__}")
+    return op, jnp.asarray(c, op.weights.dtype)
+
+
+def feedforward(
+    model: PIFit | PIOperator, desired: SignalLike, *, offset=None, initial_states=None
+) -> Signal:
+    """The input that makes the model's output follow `desired`: u = P⁻¹[desired - offset].
+
+    **Arguments:**
+
+    - `model`: a [`PIFit`][] (its offset is used) or a [`PIOperator`][] (offset 0 unless given).
+    - `desired`: the desired output trajectory (T,).
+    - `offset`: overrides the model's output offset.
+    - `initial_states`: the plant's play states at the start (scalar or (n,)); default the model's,
+      made admissible with [`admissible_states`][].
+
+    **Returns:** the feedforward input (T,). Raises `ValueError` when the model is not invertible
+    (r_1 != 0 or a cumulative weight <= 0; fit with `positive_weights=True` to avoid it).
+    """
+    op, c = _model(model, offset)
+    yd = _checks.finite(_checks.signal(desired, "desired"), "desired")
+    x0 = op.initial_states if initial_states is None else initial_states
+    x0 = admissible_states(op.thresholds, x0)
+    op = PIOperator(op.thresholds, op.weights, x0, method=op.method)
+    _check_range(c, yd)
+    return inverse(op)(yd - c)
+
+
+class Compensation(eqx.Module):
+    """Tracking with and without compensation, from [`evaluate_compensation`][].
+
+    **Fields:** `desired`; `u_compensated`, `y_compensated` (the inverse-model feedforward and the
+    plant's response); `u_linear`, `y_linear` (the best linear feedforward and the response);
+    `rmse_compensated`, `rmse_linear` (tracking RMSE of each).
+    """
+
+    desired: Signal
+    u_compensated: Signal
+    y_compensated: Signal
+    u_linear: Signal
+    y_linear: Signal
+    rmse_compensated: Scalar
+    rmse_linear: Scalar
+
+
+def linear_feedforward(u_ff: SignalLike, desired: SignalLike) -> Signal:
+    """The best straight-line feedforward: u = (desired - b)/a with desired ≈ a u_ff + b (LS).
+
+    **Arguments:** `u_ff`, an input that produces `desired` (e.g. from [`feedforward`][]); `desired`.
+
+    **Returns:** the linear feedforward input (T,).
+    """
+    u = _checks.signal(u_ff, "u_ff")
+    yd = _checks.signal(desired, "desired")
+    A = jnp.stack([u, jnp.ones_like(u)], axis=1)
+    a, b = jnp.linalg.lstsq(A, yd)[0]
+    return (yd - b) / a
+
+
+def evaluate_compensation(plant, model, desired: SignalLike, **feedforward_kwargs) -> Compensation:
+    """Drive `plant` with the inverse-model feedforward and with the linear one; compare tracking.
+
+    **Arguments:**
+
+    - `plant`: a callable u (T,) -> y (T,), e.g. a [`PIOperator`][] plus effects the model lacks.
+    - `model`, `desired`, `feedforward_kwargs`: as for [`feedforward`][].
+
+    **Returns:** a [`Compensation`][].
+    """
+    yd = _checks.signal(desired, "desired")
+    u_c = feedforward(model, yd, **feedforward_kwargs)
+    u_l = linear_feedforward(u_c, yd)
+    y_c, y_l = jnp.asarray(plant(u_c)), jnp.asarray(plant(u_l))
+    if y_c.shape != yd.shape:
+        raise ValueError(f"`plant` returned shape {y_c.shape} for an input of shape {yd.shape}")
+    rms = lambda e: jnp.sqrt(jnp.mean(e**2))  # noqa: E731
+    return Compensation(yd, u_c, y_c, u_l, y_l, rms(y_c - yd), rms(y_l - yd))

@@ -1,0 +1,406 @@
+"""Fitting a PI operator's thresholds, weights and offset to measured (u, y) data.
+
+The model is y_t = Σ_j w_j H_{r_j}[u](t) + c, with the plays' states before the first sample either
+given (by default every play starts at u_0, where all its stops are relaxed) or fitted. The
+thresholds are kept ordered with r_1 = 0 by construction: r = (0, s_1, s_1 + s_2, ...), s_k =
+softplus(θ_k) > 0. Weights are free, or w_j = softplus(θ_j) > 0 when `positive_weights`, which makes
+every cumulative weight positive and so the fitted operator invertible.
+
+The residuals are differentiated through the play scan and minimised by optimistix (Levenberg-
+Marquardt by default). The play is piecewise linear in r and in u, so the residuals are piecewise
+smooth and their Jacobian exists everywhere except at switching instants (a null set).
+
+Scales: the fit runs in normalised units, u' = (u - u_mid)/u_half and y' = (y - y_mid)/y_half with
+u_half, y_half half the peak-to-peak ranges, so one set of tolerances suits any data. The play is
+affine-equivariant, H_r[a + b u] = a + b H_{r/b}[u] for b > 0, so the normalised model maps back to
+user units exactly: r = u_half r', w = (y_half/u_half) w', states x = u_mid + u_half x'.
+
+Starts: the weights of each start are the linear least-squares solution on a grid of thresholds;
+several grids are solved at once by `vmap` (in batches on long records, to bound memory) and the
+best final fit is kept. The fit is differentiable with respect to the data in forward and reverse
+mode: optimistix differentiates the solution implicitly at the optimum.
+
+Identifiability (paper Assumption 1): a play whose threshold is at or above half the input's
+peak-to-peak range never traverses its loop, so its threshold is not determined by the data. Such
+plays are returned in `flagged`; their thresholds are where the solver left them, not estimates.
+"""
+
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax import lax
+from jaxtyping import Array, Bool, Float
+
+from .. import _checks
+from .._custom_types import Scalar, Signal, SignalLike, States, Thresholds, Weights
+from .fit_data import prepare as _prepare
+from .._operators.pi import PIOperator
+from .._operators.play import play_step
+
+Solver = Literal["lm", "gn", "bfgs"]
+SOLVERS = ("lm", "gn", "bfgs")
+
+
+class PIFit(eqx.Module):
+    """A fitted PI model y = Σ_j w_j H_{r_j}[u] + offset, in the data's units.
+
+    **Fields:**
+
+    - `thresholds` (n,): 0 = r_1 < r_2 < ... < r_n.
+    - `weights` (n,), `offset` (scalar), `initial_states` (n,): the plays' states before sample 0.
+    - `rmse`: root-mean-square residual on the fitted samples.
+    - `result`: the optimistix result code of the chosen start (`optx.RESULTS`).
+    - `flagged` (n,) bool: plays not excited by the input (threshold >= half its peak-to-peak range).
+    - `n_steps`: solver steps of the chosen start; `start_rmse` (starts,): every start's final RMSE.
+    """
+
+    thresholds: Thresholds
+    weights: Weights
+    offset: Scalar
+    initial_states: States
+    rmse: Scalar
+    result: optx.RESULTS
+    flagged: Bool[Array, " plays"]
+    n_steps: Array
+    start_rmse: Float[Array, " starts"]
+
+    @property
+    def n_plays(self) -> int:
+        """The number of plays n."""
+        return self.thresholds.shape[0]
+
+    @property
+    def result_name(self) -> str:
+        """The solver result as a name such as `"successful"` or `"max_steps_reached"`."""
+        return result_name(self.result)
+
+    def operator(self) -> PIOperator:
+        """The fitted operator without the offset, as a [`PIOperator`][]."""
+        return PIOperator(self.thresholds, self.weights, self.initial_states)
+
+    def __call__(self, u: SignalLike, initial_states=None) -> Signal:
+        """The model output operator(u) + offset for an input `u` (T,).
+
+        The plays start from `initial_states` (scalar or (n,)), by default the fitted ones; a new
+        record usually needs its own (e.g. 0 for a device relaxed at zero input).
+        """
+        x0 = self.initial_states if initial_states is None else initial_states
+        return PIOperator(self.thresholds, self.weights, x0)(u) + self.offset
+
+
+def result_name(result) -> str:
+    """The name of a concrete optimistix result code (`"successful"`, `"max_steps_reached"`, ...)."""
+    for name, item in optx.RESULTS._name_to_item.items():
+        if bool(result == item):
+            return name
+    return "unknown"
+
+
+def unexcited(u: SignalLike, thresholds) -> Bool[Array, " plays"]:
+    """Which plays the input cannot excite: threshold >= half of u's peak-to-peak range.
+
+    **Arguments:** `u` (T,), the input; `thresholds` (n,).
+
+    **Returns:** (n,) booleans, True for a play whose threshold the data do not determine.
+    """
+    u = _checks.signal(u)
+    r = jnp.atleast_1d(_checks.thresholds(thresholds))
+    return r >= 0.5 * (jnp.max(u) - jnp.min(u))
+
+
+def _softplus_inv(x):
+    return x + jnp.log(-jnp.expm1(-x))
+
+
+def _constrained(params, positive_weights, r_bound=None, active=None):
+    """Thresholds and weights from the unconstrained parameters.
+
+    `active` (n,) of 1s then 0s marks the plays in use when arrays are padded to a shared play
+    count: the inactive plays get no increment and no weight, so they sit on the top active
+    threshold and change nothing.
+    """
+    inc = jax.nn.softplus(params["increments"])
+    if active is not None:
+        inc = inc * active[1:]
+    r = jnp.concatenate([jnp.zeros(1, inc.dtype), jnp.cumsum(inc)])
+    if r_bound is not None:
+        # r_j = r_bound S_j / (1 + S_n): still increasing from 0, and every r_j < r_bound.
+        r = r_bound * r / (1.0 + r[-1])
+    w = jax.nn.softplus(params["weights"]) if positive_weights else params["weights"]
+    if active is not None:
+        w = w * active
+    return r, w
+
+
+def _predict(params, u, x0, positive_weights, r_bound=None, active=None):
+    """Normalised model output; x0 is used unless the parameters carry fitted initial states."""
+    r, w = _constrained(params, positive_weights, r_bound, active)
+    x0 = params.get("initial_states", x0)
+
+    def step(x, ut):
+        x = play_step(x, ut, r)
+        return x, jnp.dot(w, x)
+
+    _, y = lax.scan(step, x0, u)
+    return y + params["offset"]
+
+
+def _residuals(params, args):
+    """Masked residuals scaled so that their sum of squares is the mean squared error."""
+    u, y, x0, mask, positive_weights, r_bound, active = args
+    count = jnp.maximum(jnp.sum(mask), 1.0)
+    res = mask * (_predict(params, u, x0, positive_weights, r_bound, active) - y) / jnp.sqrt(count)
+    if active is None:
+        return res
+    # The inactive plays' parameters do not reach the data residuals; one residual each, zero
+    # where they start, keeps the Jacobian's columns independent (Gauss-Newton needs that) and
+    # leaves them where they are.
+    off = 1.0 - active
+    extra = [off[1:] * params["increments"], off * params["weights"]]
+    if "initial_states" in params:
+        extra.append(off * (params["initial_states"] - x0))
+    return jnp.concatenate([res, *extra])
+
+
+def _solver(name: str, rtol: float, atol: float):
+    if name == "lm":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    if name == "gn":
+        return optx.GaussNewton(rtol=rtol, atol=atol)
+    if name == "bfgs":
+        return optx.BFGS(rtol=rtol, atol=atol)
+    raise ValueError(f"unknown solver {name!r}; choose one of {SOLVERS}")
+
+
+def _grid(n, n_starts, dtype, key):
+    """Starting thresholds (starts, n) in normalised units, where 1 is half the input range."""
+    tops = jnp.linspace(1.0, 0.5, n_starts, dtype=dtype)
+    base = jnp.arange(n, dtype=dtype) / n
+    grids = tops[:, None] * base[None, :]
+    if key is not None and n > 1:
+        # Random increments with the same total spread, for starts beyond the first.
+        g = jax.random.uniform(key, (n_starts, n - 1), dtype, 0.2, 1.0)
+        g = jnp.concatenate([jnp.zeros((n_starts, 1), dtype), jnp.cumsum(g, axis=1)], axis=1)
+        g = g / g[:, -1:] * tops[:, None] * (n - 1) / n
+        grids = grids.at[1:].set(g[1:])
+    return grids
+
+
+def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_bound=None,
+                    active=None):
+    n = r0.shape[0]
+    # With padded arrays, n counts the active plays only (a traced number); the padding's
+    # regressor columns are zero, so least squares gives them no weight.
+    on = jnp.ones(n, r0.dtype) if active is None else active
+    n_on = n if active is None else jnp.sum(active)
+    top = n - 1 if active is None else jnp.sum(active).astype(int) - 1
+
+    def step(x, ut):
+        x = play_step(x, ut, r0)
+        return x, x
+
+    _, Hm = lax.scan(step, x0, u)
+    A = jnp.concatenate([Hm * on, jnp.ones_like(u)[:, None]], axis=1) * mask[:, None]
+    sol = jnp.linalg.lstsq(A, y * mask)[0]
+    w, c = sol[:n], sol[n]
+    if positive_weights:
+        w = _softplus_inv(jnp.maximum(w, 1e-2 / n_on))
+    if r_bound is None:
+        inc = _softplus_inv(jnp.maximum(jnp.diff(r0), 1e-3))
+    else:
+        # Invert r = r_bound S / (1 + S_n): S = q (1 + S_n) with q = r / r_bound and S_n = q_n/(1-q_n).
+        q = jnp.minimum(r0 / r_bound, 0.95 * (jnp.arange(n) + 1) / n_on)
+        S = q * (1 + q[top] / (1 - q[top]))
+        inc = _softplus_inv(jnp.maximum(jnp.diff(S), 1e-3))
+    if active is not None:
+        # Zero is where the inactive parameters' own residuals vanish (see `_residuals`).
+        inc, w = inc * active[1:], w * active
+    params = {"increments": inc, "weights": w, "offset": c}
+    if fit_initial_states:
+        params["initial_states"] = x0
+    return params
+
+
+@eqx.filter_jit
+def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
+                  fit_initial_states, max_steps, rtol, atol, batch=None, active=None):
+    def one(r0, un, yn, x0, mask, r_bound, active):
+        args = (un, yn, x0, mask, positive_weights, r_bound, active)
+        p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound,
+                             active)
+        sol = optx.least_squares(_residuals, _solver(solver, rtol, atol), p0, args=args,
+                                 max_steps=max_steps, throw=False)
+        res = _residuals(sol.value, args)
+        loss = jnp.sum(res**2)
+        loss = jnp.where(jnp.isfinite(loss), loss, jnp.inf)
+        return sol.value, loss, sol.result, sol.stats["num_steps"]
+
+    # Every data argument is batched along with the starts: reverse-mode differentiation of the
+    # solver's implicit derivative under `vmap` fails when its arguments are shared (unbatched)
+    # across the starts, while batched copies transpose cleanly. The copies cost starts x T.
+    n = r0s.shape[0]
+    data = (un, yn, x0, mask, r_bound, active)
+    data = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), data)
+
+    def fn(xs):
+        return one(*xs)
+
+    if batch is None or batch >= n:
+        return jax.vmap(fn)((r0s, *data))
+    # `batch` starts at a time under vmap, the batches one after another: memory grows with
+    # batch x T rather than starts x T.
+    return lax.map(fn, (r0s, *data), batch_size=batch)
+
+
+def fit_pi(
+    u: SignalLike,
+    y: SignalLike,
+    n_plays: int,
+    *,
+    positive_weights: bool = True,
+    fit_initial_states: bool = False,
+    initial_states=None,
+    solver: Solver = "lm",
+    n_starts: int = 4,
+    key=None,
+    thresholds0=None,
+    mask=None,
+    max_threshold=None,
+    max_steps: int = 100,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    starts_at_once: int | None = None,
+    pad_plays: int | None = None,
+) -> PIFit:
+    """Fit thresholds, weights and an output offset (optionally initial states) to one record.
+
+    **Arguments:**
+
+    - `u`, `y`: the measured input and output, (T,) each.
+    - `n_plays`: the number of plays n (2n + 1 parameters, plus n with `fit_initial_states`).
+    - `positive_weights`: keep every weight positive (the fitted operator is then invertible).
+    - `fit_initial_states`: also fit the plays' states before the first sample.
+    - `initial_states`: fixed states (scalar or (n,)) when they are not fitted; default u[0].
+    - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`.
+    - `n_starts`: starting threshold grids, solved under `vmap` (see `starts_at_once`); the best
+      is kept.
+    - `key`: a PRNG key; when given, starts after the first use random threshold spacings.
+    - `thresholds0`: (n,) starting thresholds (r_1 = 0, increasing) instead of the grids.
+    - `mask`: (T,) weights on the samples' residuals, 0 to hold a sample out (it still drives
+      the plays' states).
+    - `max_threshold`: an upper bound on every threshold (data units), kept by construction;
+      e.g. a fraction of half the input range, where plays are barely excited (default none).
+    - `max_steps`, `rtol`, `atol`: the solver's budget and tolerances (normalised units).
+    - `starts_at_once`: how many starts are solved together under `vmap`; further ones follow
+      batch by batch. Memory grows with `starts_at_once` x T (about 1 kB per sample and start in
+      float64, mostly the residuals' Jacobian and its factorisation), so the default keeps
+      `starts_at_once` x T near 2^20 samples: all starts at once for records up to 2^18 samples,
+      one at a time from 2^20.
+    - `pad_plays`: solve with arrays for this many plays (at least `n_plays`), the extra ones
+      inactive, so that fits with different `n_plays` share one compilation (as
+      [`select_plays`][] does on short records); the result is the same fit up to rounding (a
+      BFGS fit stopped by `max_steps` far from its optimum can amplify that rounding), at the cost
+      of `pad_plays` plays' work per step. Not with `thresholds0`.
+
+    **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
+    non-finite data, an input with zero range, or more parameters than fitted samples.
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    if n_starts < 1:
+        raise ValueError(f"`n_starts` must be at least 1, got {n_starts}")
+    if starts_at_once is not None and (
+        not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1
+    ):
+        raise ValueError(f"`starts_at_once` must be a positive whole number, got {starts_at_once}")
+    un, yn, mask, s, x0, r_start = _prepare(
+        u, y, n_plays, mask, thresholds0, initial_states, 3 if fit_initial_states else 2
+    )
+    if r_start is None:
+        r0s = _grid(n_plays, n_starts, un.dtype, key)
+    else:
+        r0s = r_start[None, :]
+    active = None
+    if pad_plays is not None:
+        if not isinstance(pad_plays, (int, np.integer)) or pad_plays < n_plays:
+            raise ValueError(
+                f"`pad_plays` must be a whole number of at least n_plays={n_plays}, got {pad_plays!r}"
+            )
+        if r_start is not None:
+            raise ValueError("`pad_plays` and `thresholds0` cannot be combined")
+    if pad_plays is not None and pad_plays > n_plays:
+        extra = int(pad_plays) - n_plays
+        # The padding repeats the top start threshold and state; the plays are inactive anyway.
+        r0s = jnp.concatenate([r0s, jnp.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
+        x0 = jnp.concatenate([x0, jnp.repeat(x0[-1:], extra)])
+        active = (jnp.arange(int(pad_plays)) < n_plays).astype(un.dtype)
+    r_bound = None
+    if max_threshold is not None:
+        if not float(max_threshold) > 0:
+            raise ValueError(f"`max_threshold` must be positive, got {max_threshold}")
+        r_bound = jnp.asarray(float(max_threshold), un.dtype) / s.u_half
+        if r_start is not None and float(r_start[-1]) >= float(r_bound):
+            raise ValueError("`thresholds0` must lie below `max_threshold`")
+    if starts_at_once is None:
+        starts_at_once = max(1, 2**20 // un.shape[0])
+    params, loss, results, steps = _solve_starts(
+        r0s, un, yn, x0, mask, r_bound, solver=solver, positive_weights=positive_weights,
+        fit_initial_states=fit_initial_states, max_steps=max_steps, rtol=rtol, atol=atol,
+        batch=min(int(starts_at_once), r0s.shape[0]), active=active,
+    )
+    best = int(jnp.argmin(loss))
+    if not bool(jnp.isfinite(loss[best])):
+        raise ValueError("every start of the fit produced non-finite residuals")
+    p = jax.tree.map(lambda a: a[best], params)
+    r, w = _constrained(p, positive_weights, r_bound, active)
+    xn = p.get("initial_states", x0)
+    r, w, xn = r[:n_plays], w[:n_plays], xn[:n_plays]
+    thresholds = r * s.u_half
+    weights = w * s.y_half / s.u_half
+    states = s.u_mid + s.u_half * xn
+    # y = y_mid + y_half (Σ w' x' + c'), x' = (x - u_mid)/u_half
+    offset = s.y_mid + s.y_half * p["offset"] - s.u_mid * jnp.sum(weights)
+    return PIFit(
+        thresholds=thresholds,
+        weights=weights,
+        offset=offset,
+        initial_states=states,
+        rmse=jnp.sqrt(loss[best]) * s.y_half,
+        result=jax.tree.map(lambda a: a[best], results),
+        flagged=thresholds >= s.u_half,
+        n_steps=steps[best],
+        start_rmse=jnp.sqrt(loss) * s.y_half,
+    )
+
+
+def uniform_pi(
+    u: SignalLike, y: SignalLike, n_plays: int, *, initial_states=None, mask=None
+) -> PIFit:
+    """The plain linear least-squares PI: n uniform thresholds on [0, half the input range).
+
+    The baseline the gradient fit is compared with: only the weights and the offset are fitted.
+
+    **Arguments:** `u`, `y` (T,); `n_plays`; `initial_states`, `mask` as in [`fit_pi`][].
+
+    **Returns:** a [`PIFit`][] (its `result` is `successful`, `n_steps` 0).
+    """
+    un, yn, mask, s, x0, _ = _prepare(u, y, n_plays, mask, None, initial_states)
+    r0 = jnp.arange(n_plays, dtype=un.dtype) / n_plays
+    p = _initial_params(r0, un, yn, x0, mask, False, False)
+    loss = jnp.sum(_residuals(p, (un, yn, x0, mask, False, None, None)) ** 2)
+    weights = p["weights"] * s.y_half / s.u_half
+    return PIFit(
+        thresholds=r0 * s.u_half,
+        weights=weights,
+        offset=s.y_mid + s.y_half * p["offset"] - s.u_mid * jnp.sum(weights),
+        initial_states=s.u_mid + s.u_half * x0,
+        rmse=jnp.sqrt(loss) * s.y_half,
+        result=optx.RESULTS.successful,
+        flagged=jnp.zeros(n_plays, bool),
+        n_steps=jnp.asarray(0),
+        start_rmse=jnp.sqrt(loss)[None] * s.y_half,
+    )

@@ -1,0 +1,271 @@
+"""The compiled CPU play-bank kernel, as JAX operations with custom gradients.
+
+`play_kernel.cc` holds XLA FFI handlers for the play bank H (T, n) and the fused PI output
+y (T,), float32 and float64, forward and backward. They are registered with `jax.ffi` the first time
+they are needed. The forward outputs equal the pure-JAX scan: H to the last bit (the same max/min
+operations), y up to the order in which the n weighted plays are summed.
+
+Gradients go through `jax.custom_vjp`. The differentiated forward pass also records, per step and
+play, one bit: whether a bound moved the state (which bound follows from the direction of the
+input), and the backward kernel runs the adjoint recurrence backwards in time over those bits. At a
+kink (the old state exactly equal to a bound) the kernel counts the step as a hold, so the
+derivative is the one-sided derivative in which the play does not move; the pure-JAX scan instead
+averages the two sides. Likewise for a zero threshold, where both bounds equal u: the kernel gives
+the threshold derivative from the admissible side r > 0, the scan the average of both sides (zero).
+Both agree everywhere else.
+
+Batching (`jax.vmap`) hands the whole batch to one kernel call (`vmap_method="broadcast_all"`), which
+splits the signals across the CPU cores (`PIEST_KERNEL_THREADS` caps the thread count).
+
+When the extension was not compiled (no C++ compiler at install time, or PIEST_KERNEL_BUILD=0), does
+not load, or was compiled for instructions this CPU lacks, `method="kernel"` and `method="auto"` on
+a CPU backend fall back to the scan and warn once per process.
+"""
+
+import functools
+import importlib
+import importlib.util
+import warnings
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jaxtyping import Array
+
+from ... import _checks
+
+
+def _missing_isa(required) -> list[str]:
+    """The instruction-set extensions in `required` that this CPU lacks (Linux; else none)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = next((ln.split(":", 1)[1].split() for ln in f if ln.startswith("flags")), None)
+    except OSError:
+        return []
+    return [] if flags is None else [name for name in required if name not in flags]
+
+
+def _load():
+    name = __package__ + "._play_kernel"
+    if importlib.util.find_spec(name) is None:
+        return None, "it was not built when the package was installed"
+    try:
+        ext = importlib.import_module(name)
+    except ImportError as err:  # built, but unloadable here (another Python or jaxlib, say)
+        return None, f"it does not load: {err}"
+    missing = _missing_isa(ext.isa())
+    if missing:  # a binary built on another machine: running it would crash the process
+        return None, (
+            f"it was compiled for {', '.join(missing)}, which this CPU lacks; reinstall on this "
+            "machine, or with PIEST_KERNEL_NATIVE=0 for a portable build"
+        )
+    return ext, ""
+
+
+_ext, _IMPORT_ERROR = _load()
+
+_DTYPES = {jnp.dtype(jnp.float32): "f32", jnp.dtype(jnp.float64): "f64"}
+
+
+@functools.cache
+def _register(ext) -> None:
+    for name, capsule in ext.registrations().items():
+        jax.ffi.register_ffi_target(name, capsule, platform="cpu")
+
+
+def available() -> bool:
+    """True when the compiled kernel is importable; registers its FFI targets on first call.
+
+    **Returns:** whether `method="kernel"` runs the compiled kernel on this installation.
+    """
+    if _ext is None:
+        return False
+    _register(_ext)
+    return True
+
+
+@functools.cache
+def _warn_fallback() -> None:
+    # functools.cache makes this fire once per process.
+    warnings.warn(
+        f"piest_jax: the compiled play kernel is not available ({_IMPORT_ERROR}); the play bank "
+        "falls back to the pure-JAX scan. Reinstall with a C++ compiler present (and "
+        "PIEST_KERNEL_BUILD unset) to build it.",
+        RuntimeWarning,
+        stacklevel=4,
+    )
+
+
+def use_kernel(method: str) -> bool:
+    """Whether a play-bank `method` runs the compiled kernel here.
+
+    `"kernel"` asks for it; `"auto"` takes it on a CPU backend and the scan on others. On a CPU
+    backend without the compiled extension both fall back to the scan, warning once per process.
+
+    **Arguments:** `method`, the play method name.
+
+    **Returns:** True to call the kernel, False to use the scan.
+    """
+    if method not in ("kernel", "auto"):
+        return False
+    if jax.default_backend() != "cpu":
+        if method == "auto":
+            return False
+        raise ValueError(
+            f"method='kernel' runs on CPU only, but the default backend is "
+            f"{jax.default_backend()!r}; use method='scan' or 'auto'"
+        )
+    if not available():
+        _warn_fallback()
+        return False
+    return True
+
+
+def _suffix(x: Array) -> str:
+    try:
+        return _DTYPES[jnp.dtype(x.dtype)]
+    except KeyError:
+        raise ValueError(
+            f"the play kernel supports float32 and float64, got {x.dtype}; "
+            "cast the input or use method='scan'"
+        ) from None
+
+
+def _code_bytes(n: int, dtype) -> int:
+    # Bytes of branch codes per step (one bit per play, padded), as the kernel lays them out.
+    return _ext.code_bytes(n, jnp.dtype(dtype).itemsize)
+
+
+def _call(kind: str, x: Array, shapes, *args):
+    if not available():
+        raise RuntimeError(
+            f"piest_jax: the compiled play kernel is not available ({_IMPORT_ERROR}); "
+            "use method='scan' or 'auto'"
+        )
+    return jax.ffi.ffi_call(
+        f"piest_{kind}_{_suffix(x)}", shapes, vmap_method="broadcast_all"
+    )(*args)
+
+
+def _sds(shape, dtype):
+    return jax.ShapeDtypeStruct(shape, dtype)
+
+
+def _validate(u: Array, r: Array, **per_play: Array) -> None:
+    # The FFI handlers trust their buffers, so every shape and dtype is checked here, at trace time.
+    if u.ndim != 1 or u.shape[0] < 1:
+        raise ValueError(f"the play kernel needs one signal u of shape (T,), T >= 1, got {u.shape}")
+    if r.ndim != 1 or r.shape[0] < 1:
+        raise ValueError(f"the play kernel needs thresholds r of shape (n,), n >= 1, got {r.shape}")
+    _suffix(u)
+    for name, a in (("r", r), *per_play.items()):
+        if a.shape != r.shape:
+            raise ValueError(f"the play kernel needs `{name}` of shape {r.shape}, got {a.shape}")
+        if a.dtype != u.dtype:
+            raise ValueError(
+                f"the play kernel needs one dtype for all arguments: u is {u.dtype}, "
+                f"`{name}` is {a.dtype}"
+            )
+
+
+def _check_finite(u: Array, r: Array) -> Array:
+    """`r`, made to depend on a check that `u` holds no NaN or inf.
+
+    `_checks.finite` attaches its `eqx.error_if` to the checked array itself, which for a long
+    signal makes XLA copy the whole signal (under `vmap` and `grad`, into freshly faulted memory).
+    Here the error is attached to a zero scalar that is added to the thresholds, so the check
+    costs one fused reduction over `u` (u * 0 is NaN exactly where u is NaN or inf) and adds
+    nothing (r + 0 == r).
+    """
+    if _checks.is_concrete(u):
+        _checks.finite(u, "u")
+        return r
+    bad = ~jnp.isfinite(jnp.sum(lax.stop_gradient(u) * 0))
+    return r + eqx.error_if(jnp.zeros((), r.dtype), bad, "`u` contains NaN or inf")
+
+
+def bank(u: Array, r: Array, x0: Array) -> Array:
+    """The play outputs H (T, n) for input `u` (T,), thresholds `r` (n,) and states `x0` (n,).
+
+    All three must share one float dtype (float32 or float64); anything else raises `ValueError`,
+    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`,
+    `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    respect to all three arguments.
+
+    **Arguments:**
+
+    - `u`: the input (T,).
+    - `r`: the thresholds (n,), non-negative.
+    - `x0`: the initial states (n,).
+
+    **Returns:** H (T, n), equal to the pure-JAX scan to the last bit.
+    """
+    u, r, x0 = (jnp.asarray(a) for a in (u, r, x0))
+    _validate(u, r, x0=x0)
+    return _bank(u, _check_finite(u, r), x0)
+
+
+@jax.custom_vjp
+def _bank(u, r, x0):
+    return _call("bank_fwd", u, _sds((u.shape[0], r.shape[0]), u.dtype), u, r, x0)
+
+
+def _bank_fwd(u, r, x0):
+    t, n = u.shape[0], r.shape[0]
+    shapes = (_sds((t, n), u.dtype), _sds((t, _code_bytes(n, u.dtype)), jnp.uint8))
+    h, codes = _call("bank_fwd_res", u, shapes, u, r, x0)
+    return h, (u, r, x0, codes)
+
+
+def _bank_bwd(res, gh):
+    u, r, x0, codes = res
+    shapes = (_sds(u.shape, u.dtype), _sds(r.shape, u.dtype), _sds(x0.shape, u.dtype))
+    return tuple(_call("bank_bwd", u, shapes, u, r, x0, codes, gh.astype(u.dtype)))
+
+
+_bank.defvjp(_bank_fwd, _bank_bwd)
+
+
+def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
+    """The fused PI output y_t = Σ_j w_j H_{r_j}[u](t), without materialising H.
+
+    All four must share one float dtype (float32 or float64); anything else raises `ValueError`,
+    and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`,
+    `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
+    respect to all four arguments.
+
+    **Arguments:**
+
+    - `u`: the input (T,).
+    - `r`: the thresholds (n,), non-negative.
+    - `x0`: the initial states (n,).
+    - `w`: the weights (n,).
+
+    **Returns:** y (T,). The n terms are summed in a fixed order (lane-wise partial sums over
+    blocks of plays, then a halving tree), so y can differ from `H @ w` in the last bits.
+    """
+    u, r, x0, w = (jnp.asarray(a) for a in (u, r, x0, w))
+    _validate(u, r, x0=x0, w=w)
+    return _pi(u, _check_finite(u, r), x0, w)
+
+
+@jax.custom_vjp
+def _pi(u, r, x0, w):
+    return _call("pi_fwd", u, _sds(u.shape, u.dtype), u, r, x0, w)
+
+
+def _pi_fwd(u, r, x0, w):
+    codes = _sds((u.shape[0], _code_bytes(r.shape[0], u.dtype)), jnp.uint8)
+    shapes = (_sds(u.shape, u.dtype), codes)
+    y, codes = _call("pi_fwd_res", u, shapes, u, r, x0, w)
+    return y, (u, r, x0, w, codes)
+
+
+def _pi_bwd(res, gy):
+    u, r, x0, w, codes = res
+    shapes = (_sds(u.shape, u.dtype),) + tuple(_sds(a.shape, u.dtype) for a in (r, x0, w))
+    return tuple(_call("pi_bwd", u, shapes, u, r, x0, w, codes, gy.astype(u.dtype)))
+
+
+_pi.defvjp(_pi_fwd, _pi_bwd)

@@ -1,0 +1,166 @@
+"""The play (backlash) and stop operators, paper eqs. (1)-(2).
+
+One play step is a clamp: x_t = max(u_t - r, min(u_t + r, x_{t-1})). The sequential form is a step
+function plus a thin `lax.scan`. Because clamps compose into clamps,
+
+    clamp[l2, h2] ∘ clamp[l1, h1] = clamp[clamp[l2, h2](l1), clamp[l2, h2](h1)],
+
+the same outputs also follow from `lax.associative_scan` in O(log T) depth. max and min only ever
+select one of their arguments, so both forms round identically: the outputs agree to the last bit.
+
+At a switching instant (a held state exactly on a bound u ± r) the output is not differentiable.
+JAX's max/min then share the gradient equally between the tied arguments, so with the scan a
+derivative taken exactly at a single kink is the average of the two one-sided derivatives; anywhere
+else it is exact. The associative form regroups the clamps, so at a kink it may return another
+one-sided combination; away from kinks both agree. A zero threshold lies on the boundary of r >= 0,
+so a derivative with respect to it is not a meaningful sensitivity.
+"""
+
+from typing import Literal
+
+import jax.numpy as jnp
+from jax import lax
+from jaxtyping import Array
+
+from .. import _checks
+from .._custom_types import ScalarLike, SignalLike, ThresholdsLike
+
+Method = Literal["scan", "associative", "kernel", "auto"]
+# "kernel" is the compiled CPU kernel (`kernel/`); "auto" takes it on CPU when built, else the scan.
+METHODS = ("scan", "associative", "kernel", "auto")
+
+
+def play_step(x: Array, u: Array, r: Array) -> Array:
+    """One sample of the play operator: the state `x` clamped to [u - r, u + r].
+
+    **Arguments:**
+
+    - `x`: the previous state, scalar or (n,).
+    - `u`: the input at this sample.
+    - `r`: the threshold(s), broadcastable against `x`.
+
+    **Returns:** the new state, which is also the play's output at this sample.
+    """
+    return jnp.maximum(u - r, jnp.minimum(u + r, x))
+
+
+def _scan(u: Array, r: Array, x0: Array) -> Array:
+    def step(x, ut):
+        x = play_step(x, ut, r)
+        return x, x
+
+    _, xs = lax.scan(step, x0, u)
+    return xs
+
+
+def _compose(earlier, later):
+    lo1, hi1 = earlier
+    lo2, hi2 = later
+    # The later clamp applied to the earlier clamp's bounds gives the composed clamp's bounds.
+    return (
+        jnp.maximum(lo2, jnp.minimum(hi2, lo1)),
+        jnp.maximum(lo2, jnp.minimum(hi2, hi1)),
+    )
+
+
+def _associative(u: Array, r: Array, x0: Array) -> Array:
+    lo = u[:, None] - r
+    hi = u[:, None] + r
+    lo_c, hi_c = lax.associative_scan(_compose, (lo, hi))
+    return jnp.maximum(lo_c, jnp.minimum(hi_c, x0))
+
+
+def _uses_kernel(method: str) -> bool:
+    """Whether `method` runs the compiled kernel here (it checks its input for NaN/inf itself)."""
+    if method not in ("kernel", "auto"):
+        return False
+    from . import kernel as _kernel
+
+    return _kernel.use_kernel(method)
+
+
+def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
+    """Play outputs (T, n) for thresholds r (n,) and initial states x0 (n,)."""
+    if method in ("kernel", "auto"):
+        from . import kernel as _kernel
+
+        if _kernel.use_kernel(method):
+            return _kernel.bank(u, r, x0)
+        return _scan(u, r, x0)
+    if method == "scan":
+        return _scan(u, r, x0)
+    if method == "associative":
+        return _associative(u, r, x0)
+    raise ValueError(f"unknown play method {method!r}; choose one of {METHODS}")
+
+
+def _prepare(u, r, x0, x0_name="x0", method="scan"):
+    u = _checks.signal(u)
+    if not _uses_kernel(method):
+        u = _checks.finite(u, "u")
+    r = _checks.thresholds(r, "r")
+    n = None if r.ndim == 0 else r.shape[0]
+    x0 = _checks.per_play(x0, n, x0_name)
+    dtype = jnp.result_type(u, r, x0)
+    u, r, x0 = u.astype(dtype), r.astype(dtype), x0.astype(dtype)
+    rv = jnp.atleast_1d(r)
+    x0v = jnp.broadcast_to(x0, rv.shape)
+    return u, r, rv, x0v
+
+
+def play(
+    u: SignalLike,
+    r: ThresholdsLike,
+    x0: ScalarLike | ThresholdsLike = 0.0,
+    *,
+    method: Method = "scan",
+) -> Array:
+    """The play operator H_r[u] (paper eq. 1) on a sampled input.
+
+    The state before the first sample is `x0`, so the first output is
+    max(u_0 - r, min(u_0 + r, x0)) (paper eq. 2); `x0` need not be zero.
+
+    **Arguments:**
+
+    - `u`: the input signal, shape (T,).
+    - `r`: one threshold (scalar) or a bank of thresholds (n,), all >= 0.
+    - `x0`: the initial state(s), a scalar or (n,).
+    - `method`: `"scan"` (sequential `lax.scan`, the reference), `"associative"`
+      (`lax.associative_scan`, O(log T) depth, same outputs to the last bit), `"kernel"` (the
+      compiled CPU kernel, same outputs to the last bit; falls back to the scan with a warning when
+      it was not built) or `"auto"` (the kernel on a CPU backend when built, the scan elsewhere).
+
+    **Returns:** the play output, (T,) for a scalar `r` and (T, n) for a vector `r`.
+    """
+    u, r, rv, x0v = _prepare(u, r, x0, method=method)
+    out = _bank(u, rv, x0v, method)
+    return out[:, 0] if r.ndim == 0 else out
+
+
+def stop(
+    u: SignalLike,
+    r: ThresholdsLike,
+    e0: ScalarLike | ThresholdsLike = 0.0,
+    *,
+    method: Method = "scan",
+) -> Array:
+    """The stop operator E_r[u] = u - H_r[u], the play's dual.
+
+    Its output always lies in [-r, r] and follows e_t = clamp(e_{t-1} + u_t - u_{t-1}, -r, r), with
+    `e0` the stop's state before the first sample (a relaxed stop has e0 = 0). This is the play with
+    initial state u_0 - e0.
+
+    **Arguments:**
+
+    - `u`: the input signal, shape (T,).
+    - `r`: one threshold (scalar) or a bank of thresholds (n,), all >= 0.
+    - `e0`: the stop's initial state(s), a scalar or (n,).
+    - `method`: as for [`play`][].
+
+    **Returns:** the stop output, (T,) or (T, n).
+    """
+    u, r, rv, e0v = _prepare(u, r, e0, "e0", method)
+    # u - H lies in [-r, r] exactly, but its rounding can step past r by an ulp; the clip restores
+    # the bound without changing any value that was inside it.
+    out = jnp.clip(u[:, None] - _bank(u, rv, u[0] - e0v, method), -rv, rv)
+    return out[:, 0] if r.ndim == 0 else out
