@@ -177,6 +177,12 @@ def test_cli_writes_the_report(csv_files, tmp_path, capsys):
     # The reported model is the one the refinement kept.
     assert rep["refinement"]["model_final"]["rmse"] == pytest.approx(rep["final_rmse"], rel=1e-9)
     assert {"baseline_rmse", "final_rmse"} <= set(rep["validation"])
+    v = rep["validation"]
+    # Estimating the offset and initial states can only bring the model closer to the record.
+    assert v["baseline_rmse_ic"] <= v["baseline_rmse"] and v["final_rmse_ic"] <= v["final_rmse"]
+    assert v["final_fit_percent_ic"] >= v["final_fit_percent"]
+    assert rep["transferable_effects"] == ["delay"] and rep["record_specific_effects"] == []
+    assert v["effects_used"] == ["delay"]
     assert (out / "report.png").stat().st_size > 0 and "# Diagnosis" in (out / "report.md").read_text()
 
 

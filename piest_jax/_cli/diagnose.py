@@ -20,8 +20,13 @@ candidates shows on a terminal (not with --quiet or --json). Writes
   DIR/report.json  effects (in order), baseline_rmse, final_rmse, noise_std_estimate,
                    candidates (first-round held-out scores), parameters (of the named
                    effects), refinement (solver result, steps, RMSE before/after,
-                   which fit was kept), rounds, where (located disagreements), and
-                   validation {baseline_rmse, final_rmse} with --validate
+                   which fit was kept), rounds, where (located disagreements),
+                   transferable_effects (functions of the input) and
+                   record_specific_effects (initial_state, offset_drift: tied to
+                   this record), and with --validate: validation {baseline_rmse,
+                   final_rmse} (raw: the models from rest, transferable effects
+                   only), {baseline,final}_rmse_ic (offset, play and creep initial
+                   states estimated on VAL.csv, nothing else), fit percentages
   DIR/report.png   residuals and loops, before and after
   DIR/report.md    a short written report
 
@@ -98,6 +103,24 @@ def _markdown(rep):
         lines.append(f"| RMSE, validation record | {v['baseline_rmse']:.4g} | {v['final_rmse']:.4g} |")
         lines.append(f"| RMSE, validation record, mean residual removed | "
                      f"{v['baseline_rmse_offset_removed']:.4g} | {v['final_rmse_offset_removed']:.4g} |")
+        lines.append(f"| RMSE, validation record, initial conditions estimated | "
+                     f"{v['baseline_rmse_ic']:.4g} | {v['final_rmse_ic']:.4g} |")
+        lines.append(f"| fit %, validation record (raw / initial conditions estimated) | "
+                     f"{v['baseline_fit_percent']:.1f} / {v['baseline_fit_percent_ic']:.1f} | "
+                     f"{v['final_fit_percent']:.1f} / {v['final_fit_percent_ic']:.1f} |")
+    if rep["record_specific_effects"]:
+        lines += ["", "Tied to this record, left out on another: "
+                  + ", ".join(f"`{e}`" for e in rep["record_specific_effects"])
+                  + ". They explain this record's unrecorded past or its drift over time; another run "
+                  "of the device has its own, so the model used on the validation record and for "
+                  "compensation keeps only the effects driven by the input"
+                  + (": " + ", ".join(f"`{e}`" for e in rep["transferable_effects"]) if rep["transferable_effects"]
+                     else " (none here)") + ".", ""]
+    if "validation" in rep:
+        lines += ["", "On the validation record, *raw* runs the model from rest; *initial conditions "
+                  "estimated* fits only the output offset and the plays' and creep modes' initial "
+                  "states to that record (as system identification tools compare a model with data), "
+                  "everything else fixed.", ""]
     for e, par in rep.get("parameters", {}).items():
         if par:
             lines.append(f"- `{e}`: " + ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"

@@ -95,6 +95,26 @@ def _significant(gain, n_params, cur_mse, sigma2, n):
     return score, bool(score > MIN_GAIN_NOISE and gain > MIN_GAIN_REL * cur_mse)
 
 
+def _prefer_input_driven(scores, best, cur, sigma2, n):
+    """A time drift that wins a round gives way to an input-driven effect that explains as much.
+
+    Creep and a drift over time can fit the same slow residual on one record, but only creep,
+    a function of the input, carries over to another run. The drift keeps its place only when
+    its held-out gain over the best significant input-driven candidate is itself significant:
+    the held-out blocks then include stretches where the output moves while the input does not
+    (a pause, a steady periodic drive), which no function of the input explains.
+    """
+    if best != "offset_drift":
+        return best
+    alts = [c for c, v in scores.items() if c not in _effects.RECORD_SPECIFIC and v["significant"]]
+    if not alts:
+        return best
+    alt = max(alts, key=lambda c: scores[c]["score"])
+    if _significant(scores[alt]["mse"] - scores[best]["mse"], 0, cur, sigma2, n)[1]:
+        return best
+    return alt
+
+
 def _revisit(p, cfg, named, candidates, cur):
     """Re-choose each named effect given the others (one backfitting pass).
 
@@ -209,7 +229,7 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
                              significant=ok, value=q, mse=mse)
         if not scores:
             break
-        best = max(scores, key=lambda k: scores[k]["score"])
+        best = _prefer_input_driven(scores, max(scores, key=lambda k: scores[k]["score"]), cur, sigma2, n)
         ok = scores[best]["significant"]
         rounds.append(dict(
             current_heldout_rmse=float(np.sqrt(cur)) * sc.y_half,
@@ -308,7 +328,7 @@ def _describe(effect, q):
     return {}
 
 
-def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False):
+def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False, history=None):
     """Run a fitted model on a record at full rate; returns (prediction in data units, RMSE).
 
     **Arguments:**
@@ -317,22 +337,71 @@ def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False):
     - `model`: `search(...)["model_base"]` or `["model_final"]`.
     - `transferable_only`: for another record, switch off what is tied to the identification
       record itself (its plays' initial states and its drift over time).
+    - `history`: turning points (normalised input) of an input history that sets the plays'
+      initial states on this record; implies `transferable_only` for the drift.
 
     **Returns:** `(prediction, rmse)`.
     """
+    p = prepared(rec, sc)
     if model.get("refined") is not None:
-        pred = _refine.predict(model["refined"], prepared(rec, sc), model["norm"],
-                               transferable_only=transferable_only)
-        pred = pred * sc.y_half + sc.y_mid
-        return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
-    cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
-    if transferable_only:
-        cfg.pop("initial_state", None)
-        if cfg.pop("offset_drift", None) is not None:
-            w = w[: len(w) - _effects.N_DRIFT]
-    pred = _effects.predict(prepared(rec, sc), cfg, w, np.asarray(model["coef_v"]), model["norm"])
+        pred = _refine.predict(model["refined"], p, model["norm"], transferable_only=transferable_only,
+                               history=history)
+    else:
+        cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
+        if transferable_only or history is not None:
+            cfg.pop("initial_state", None)
+            if cfg.pop("offset_drift", None) is not None:
+                w = w[: len(w) - _effects.N_DRIFT]
+        if history is not None:
+            cfg["initial_state"] = tuple(history)
+        pred = _effects.predict(p, cfg, w, np.asarray(model["coef_v"]), model["norm"])
     pred = pred * sc.y_half + sc.y_mid
     return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
+
+
+def _creep_taus(model):
+    if model.get("refined") is not None:
+        return np.asarray(model["refined"].cfg.get("creep", ()), float)
+    return np.asarray(model["cfg"].get("creep", ()), float)
+
+
+def evaluate_ic(rec: Record, sc: Scaling, model):
+    """A model's prediction of another record with its initial conditions estimated on that record.
+
+    As system identification tools compare a model with data (MATLAB's `compare`): the model
+    is fixed, and only what no model of the input can know is estimated on the record: the
+    output offset (a sensor zero that moved between runs), the plays' initial states and the
+    creep modes' initial states. The plays' states are those an input history leaves (the
+    `initial_state` effect's grid of histories, so they stay reachable); a creep mode starting
+    away from rest adds a decaying exponential lam_k^t, so its state and the offset enter
+    linearly and are fitted by least squares for each history. Drift over time is not used.
+
+    **Arguments:** as `evaluate`.
+
+    **Returns:** `(prediction, rmse, estimated)` with `estimated` a dict: `offset`, the history's
+    turning points in the record's input units (empty for relaxed plays) and `creep_states`.
+    """
+    p = prepared(rec, sc)
+    lam = np.exp(-p.dt / _creep_taus(model)) if _creep_taus(model).size else np.zeros(0)
+    k = np.arange(len(rec.y))[:, None]
+    C = np.column_stack([np.ones(len(rec.y)), lam[None, :] ** (k + 1)])
+    best = None
+    for history in [None, *_effects.grid("initial_state", p)]:
+        pred, _ = evaluate(rec, sc, model, transferable_only=True, history=history)
+        coef = np.linalg.lstsq(C, rec.y - pred, rcond=None)[0]
+        full = pred + C @ coef
+        rmse = float(np.sqrt(np.mean((full - rec.y) ** 2)))
+        if best is None or rmse < best[1]:
+            turns = [] if history is None else [float(a) * sc.u_half + sc.u_mid for a in history]
+            best = (full, rmse, dict(offset=float(coef[0]), history_turning_points=turns,
+                                     creep_states=[float(c) for c in coef[1:]]))
+    return best
+
+
+def fit_percent(y, pred) -> float:
+    """The fit percentage system identification reports: 100 (1 - |y - pred| / |y - mean(y)|)."""
+    y, pred = np.asarray(y, float), np.asarray(pred, float)
+    return float(100.0 * (1.0 - np.linalg.norm(y - pred) / max(np.linalg.norm(y - y.mean()), 1e-300)))
 
 
 def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
@@ -344,11 +413,15 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
     - `validation`: an optional second record of the same device, run through both models.
     - `**kwargs`: passed to `search` (`max_effects`, `candidates`, `solver`, `quiet`, ...).
 
-    **Returns:** a JSON-ready dict with `effects`, `baseline_rmse`, `final_rmse`,
-    `noise_std_estimate`, `candidates`, `parameters` (of the named effects, after refinement),
-    `refinement` (solver result, steps, RMSE before and after, for both models), `rounds`,
-    `where`, `heldout` and, with a validation record,
-    `validation` (`baseline_rmse`, `final_rmse`); arrays for plotting are under `_arrays`.
+    **Returns:** a JSON-ready dict with `effects`, `transferable_effects` (functions of the
+    input) and `record_specific_effects` (`initial_state`, `offset_drift`: tied to this record),
+    `baseline_rmse`, `final_rmse`, `noise_std_estimate`, `candidates`, `parameters` (of the named
+    effects, after refinement), `refinement` (solver result, steps, RMSE before and after, for
+    both models), `rounds`, `where`, `heldout` and, with a validation record, `validation`:
+    `baseline_rmse`, `final_rmse` (raw: each model from rest, transferable effects only),
+    `baseline_rmse_ic`, `final_rmse_ic` (offset and initial states estimated on the validation
+    record by `evaluate_ic`), the fit percentages of both and the estimated initial conditions.
+    Arrays for plotting are under `_arrays`.
     """
     s = search(rec, **kwargs)
     sc, named = s["scaling"], s["effects"]
@@ -357,6 +430,8 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
     first = s["rounds"][0]["candidates"] if s["rounds"] else {}
     out = dict(
         effects=named,
+        transferable_effects=[e for e in named if e not in _effects.RECORD_SPECIFIC],
+        record_specific_effects=[e for e in named if e in _effects.RECORD_SPECIFIC],
         baseline_rmse=rmse_b,
         final_rmse=rmse_f,
         noise_std_estimate=s["noise_std"],
@@ -375,13 +450,24 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
         check_record(validation)
         vb, rb = evaluate(validation, sc, s["model_base"], transferable_only=True)
         vf, rf = evaluate(validation, sc, s["model_final"], transferable_only=True)
+        vbi, rbi, est_b = evaluate_ic(validation, sc, s["model_base"])
+        vfi, rfi, est_f = evaluate_ic(validation, sc, s["model_final"])
         out["validation"] = dict(
-            baseline_rmse=rb, final_rmse=rf, noise_std_estimate=noise_std(validation.y),
+            baseline_rmse=rb, final_rmse=rf,
+            # With the validation record's own initial conditions (offset, play and creep
+            # states) estimated on it, everything else fixed: what the model predicts of a run
+            # already in motion, as system identification tools report it.
+            baseline_rmse_ic=rbi, final_rmse_ic=rfi,
+            baseline_fit_percent=fit_percent(validation.y, vb), final_fit_percent=fit_percent(validation.y, vf),
+            baseline_fit_percent_ic=fit_percent(validation.y, vbi),
+            final_fit_percent_ic=fit_percent(validation.y, vfi),
+            initial_conditions=dict(baseline=est_b, final=est_f),
+            noise_std_estimate=noise_std(validation.y),
             # The same with each model's mean residual removed: a sensor zero that moved
             # between the two runs is no failure of either model.
             baseline_rmse_offset_removed=float(np.std(validation.y - vb)),
             final_rmse_offset_removed=float(np.std(validation.y - vf)),
-            effects_used=[e for e in named if e not in ("initial_state", "offset_drift")],
+            effects_used=[e for e in named if e not in _effects.RECORD_SPECIFIC],
         )
         arrays.update(val_t=validation.t, val_u=validation.u, val_y=validation.y, val_base=vb, val_final=vf)
     out["_arrays"] = arrays

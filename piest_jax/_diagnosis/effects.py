@@ -39,6 +39,10 @@ EFFECTS = (
     "asymmetry",
     "offset_drift",
 )
+# Effects tied to the record they were found on (the unrecorded past before its first sample, a
+# drift over its time axis): they explain that record but cannot carry over to another run of the
+# device, so a model used on another record leaves them out. The others are functions of the input.
+RECORD_SPECIFIC = ("initial_state", "offset_drift")
 N_PLAYS = 16
 THRESHOLDS = np.arange(N_PLAYS) / N_PLAYS
 N_CREEP = 5  # creep modes, log-spaced from a third of the input's period to the record's length

@@ -304,16 +304,24 @@ def refine(p: _effects.Prepared, cfg, w, norm, *, solver: str = "lm", max_steps:
                    float(np.sqrt(loss)), accepted)
 
 
-def predict(refined: Refined, p: _effects.Prepared, norm, *, transferable_only=False) -> np.ndarray:
+def predict(refined: Refined, p: _effects.Prepared, norm, *, transferable_only=False,
+            history=None) -> np.ndarray:
     """The refined model's output on a record (normalised units, (T,)).
 
     **Arguments:** `refined`; `p`, a record in the identification record's units; `norm`, the
-    output polynomial's normalisation; `transferable_only`, as in `model`.
+    output polynomial's normalisation; `transferable_only`, as in `model`; `history`, turning
+    points of an input history that sets the plays' initial states on this record (as the
+    `initial_state` effect does), which implies `transferable_only` for the drift.
 
     **Returns:** the output (T,).
     """
     data, _, _ = data_of(p, norm, pad=False)
-    return np.asarray(_predict_jit(refined.theta, refined.structure, data, transferable_only))
+    theta, st = refined.theta, refined.structure
+    if history is not None:
+        theta = {**theta, "turns": jnp.asarray(history, data["u"].dtype)}
+        st = st._replace(n_turns=len(history), drift=False)
+        transferable_only = False
+    return np.asarray(_predict_jit(theta, st, data, transferable_only))
 
 
 @eqx.filter_jit

@@ -1,0 +1,130 @@
+"""Validation with estimated initial conditions: the diagnosis model on another run of the device.
+
+A model is fixed; only the output offset, the plays' initial states (through an input history)
+and the creep modes' initial states are estimated on the other record. Checked against records
+built by plain loops with known initial conditions.
+"""
+
+import numpy as np
+import pytest
+
+from piest_jax._data.record import Record
+from piest_jax._diagnosis import diagnose as _diagnose
+from piest_jax._diagnosis import effects as _effects
+from piest_jax._diagnosis.scaling import prepared, scaling_of
+
+
+def _record(n=1500, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.01
+    u = np.sin(2 * np.pi * 0.8 * t) * (1 + 0.3 * np.sin(2 * np.pi * 0.07 * t)) + 0.05 * rng.normal(size=n)
+    return Record(t, u, u.copy())
+
+
+def _plays_loop(u, r, x0):
+    x, out = np.array(x0, float), np.empty((len(u), len(r)))
+    for i, v in enumerate(u):
+        x = np.maximum(v - r, np.minimum(v + r, x))
+        out[i] = x
+    return out
+
+
+def _model(cfg, seed=1):
+    rng = np.random.default_rng(seed)
+    w = np.concatenate([rng.uniform(0.05, 0.3, _effects.N_PLAYS), [0.1], rng.uniform(0.1, 0.3, len(cfg.get("creep", ())))])
+    return dict(cfg=cfg, coef=w, coef_v=w, norm=(0.0, 1.0))
+
+
+@pytest.mark.parametrize("taus", [(), (0.05, 0.4)])
+def test_offset_and_initial_states_are_recovered(taus):
+    ident = _record()
+    sc = scaling_of(ident)
+    other = _record(seed=3)
+    p = prepared(other, sc)
+    cfg = {"creep": taus} if taus else {}
+    model = _model(cfg)
+    w = model["coef"]
+    history = _effects.grid("initial_state", p)[7]
+    # The truth, from plain loops: plays from the history's states, creep modes from states
+    # away from rest, and an offset.
+    x0 = _effects.history_states(p.u[0], history)
+    v = _plays_loop(p.u, _effects.THRESHOLDS, x0) @ w[: _effects.N_PLAYS] + w[_effects.N_PLAYS]
+    y = v.copy()
+    delta = np.array([0.3, -0.2])[: len(taus)]
+    for k, tau in enumerate(taus):
+        lam, z = np.exp(-p.dt / tau), v[0] + delta[k]
+        for i in range(len(v)):
+            z = lam * z + (1 - lam) * v[i]
+            y[i] += w[_effects.N_PLAYS + 1 + k] * (z - v[i])
+    shift = 0.37
+    truth = Record(other.t, other.u, (y + shift) * sc.y_half + sc.y_mid)
+    _, raw = _diagnose.evaluate(truth, sc, model, transferable_only=True)
+    pred, rmse, est = _diagnose.evaluate_ic(truth, sc, model)
+    assert raw > 0.05 * np.std(truth.y)
+    assert rmse < 1e-9 * np.std(truth.y)
+    assert np.allclose(pred, truth.y, atol=1e-8 * np.std(truth.y))
+    assert est["offset"] == pytest.approx(shift * sc.y_half, rel=1e-6)
+    assert np.allclose(est["history_turning_points"], np.asarray(history) * sc.u_half + sc.u_mid)
+    c = w[_effects.N_PLAYS + 1 :]
+    assert np.allclose(est["creep_states"], c * delta * sc.y_half, rtol=1e-6)
+
+
+def test_estimated_initial_conditions_never_predict_worse():
+    ident, other = _record(), _record(seed=5)
+    sc = scaling_of(ident)
+    model = _model({"creep": (0.2,)})
+    rng = np.random.default_rng(2)
+    noisy = Record(other.t, other.u, other.y + 0.1 * rng.normal(size=len(other.y)))
+    _, raw = _diagnose.evaluate(noisy, sc, model, transferable_only=True)
+    assert _diagnose.evaluate_ic(noisy, sc, model)[1] <= raw
+
+
+def test_fit_percent():
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=200)
+    assert _diagnose.fit_percent(y, y) == pytest.approx(100.0)
+    assert _diagnose.fit_percent(y, np.full(200, y.mean())) == pytest.approx(0.0, abs=1e-12)
+    e = 0.1 * rng.normal(size=200)
+    want = 100 * (1 - np.sqrt(np.sum(e**2)) / np.sqrt(np.sum((y - y.mean()) ** 2)))
+    assert _diagnose.fit_percent(y, y + e) == pytest.approx(want)
+
+
+def _scores(**mse):
+    return {k: dict(mse=v, significant=True, score=1.0 / v) for k, v in mse.items()}
+
+
+def test_a_drift_gives_way_to_creep_that_explains_as_much():
+    sigma2, n, cur = 1e-4, 2000, 1e-2
+    # Creep explains as much as the drift (the difference is far below the noise): creep wins.
+    s = _scores(offset_drift=5.0e-3, creep=5.0e-3 + 1e-7)
+    assert _diagnose._prefer_input_driven(s, "offset_drift", cur, sigma2, n) == "creep"
+    # The drift explains clearly more (output moving where the input does not): it stays.
+    s = _scores(offset_drift=2.0e-3, creep=5.0e-3)
+    assert _diagnose._prefer_input_driven(s, "offset_drift", cur, sigma2, n) == "offset_drift"
+    # An input-driven candidate that is not itself significant does not take the place.
+    s = _scores(offset_drift=5.0e-3, creep=5.0e-3)
+    s["creep"]["significant"] = False
+    assert _diagnose._prefer_input_driven(s, "offset_drift", cur, sigma2, n) == "offset_drift"
+    assert _diagnose._prefer_input_driven(s, "creep", cur, sigma2, n) == "creep"
+
+
+@pytest.mark.parametrize("cfg", [{}, {"creep": (0.05, 0.4)}, {"asymmetry": 0.2, "delay": 0.013}])
+def test_refined_and_grid_models_agree_from_a_history(cfg):
+    # The diagnosis carries a model either as grid coefficients or as the optimistix-refined
+    # parameters; from the same input history both must give the same prediction.
+    from piest_jax._diagnosis import refine as _refine
+
+    ident, other = _record(), _record(seed=4)
+    sc = scaling_of(ident)
+    model = _model(cfg)
+    if "asymmetry" in cfg:
+        model["coef"] = np.insert(model["coef"], _effects.N_PLAYS + 1, [0.05, -0.02, 0.01, 0.0])
+        model["coef_v"] = model["coef"]
+    # Positive creep coefficients, so the refined model's softplus stands for them exactly.
+    theta = _refine.initial_params(cfg, model["coef"])
+    refined = _refine.Refined(theta, _refine.structure(cfg), cfg, "successful", 0, 0.0, 0.0, True)
+    history = _effects.grid("initial_state", prepared(other, sc))[20]
+    a, _ = _diagnose.evaluate(other, sc, model, history=history)
+    b, _ = _diagnose.evaluate(other, sc, dict(model, refined=refined), history=history)
+    assert np.allclose(a, b, rtol=1e-5, atol=1e-5 * np.std(other.y))
+    assert not np.allclose(a, _diagnose.evaluate(other, sc, model, transferable_only=True)[0], rtol=1e-3)
