@@ -6,7 +6,9 @@ error on held-out blocks by blocked cross-validation (contiguous blocks, folds i
 model running through every block so states carry across). The best candidate is named only if
 its held-out gain, less a charge per parameter, is large against the noise floor and a real share
 of the remaining error; then the loop repeats on what remains, and effects that a later one made
-redundant are dropped again. Long records are sub-sampled for the search; the model's time
+redundant are dropped again. Long records are sub-sampled for the search, with the plays run on
+the kept samples plus the turning samples between them (`_effects.turning_samples`), so the play
+columns are the full-rate ones at the kept samples and no peak is lost; the model's time
 constants and delay are physical, so the chosen model is then fitted and evaluated at full rate.
 Finally the plain and the chosen model are refined jointly, every parameter at once, by optimistix
 least squares (`_refine`), the machinery of `fit_pi`; a refinement is kept only when it lowers the
@@ -52,7 +54,7 @@ def _fit_many(p, cfg, effect, values):
     if effect == "initial_state":
         # All histories at once: one pass of the plays with a batch of initial states.
         g, r = _effects.play_inputs(p, cfg)
-        Hs = _effects.plays(g, r, np.stack([_effects.history_states(g[0], tr) for tr in values]))
+        Hs = _effects.plays(g, r, np.stack([_effects.history_states(g[0], tr) for tr in values]), p.keep)
 
     def sse(q, i):
         c = {**cfg, effect: q}

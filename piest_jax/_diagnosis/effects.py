@@ -62,23 +62,26 @@ N_PARAMS = {
 }
 
 
-def plays(g, r, x0):
+def plays(g, r, x0, keep=None):
     """Play outputs for several initial states at once.
 
     **Arguments:** `g` (T,), the (transformed) input; `r`, thresholds (n,) or time-varying (T, n);
-    `x0` (C, n), C sets of initial states.
+    `x0` (C, n), C sets of initial states; `keep`, the sample positions to return (default all).
 
-    **Returns:** (C, T, n).
+    **Returns:** (C, T, n), or (C, len(keep), n).
     """
     g = np.asarray(g, float)
     x = np.array(x0, float)
     rr = np.broadcast_to(np.asarray(r, float), (len(g), x.shape[-1]))
     lo, hi = g[:, None] - rr, g[:, None] + rr
-    out = np.empty((len(g), x.shape[0], x.shape[1]))
+    slot = np.full(len(g), -1)
+    slot[np.arange(len(g)) if keep is None else np.asarray(keep)] = np.arange(len(g) if keep is None else len(keep))
+    out = np.empty((len(g) if keep is None else len(keep), x.shape[0], x.shape[1]))
     for i in range(len(g)):
         np.maximum(x, lo[i], out=x)
         np.minimum(x, hi[i], out=x)
-        out[i] = x
+        if slot[i] >= 0:
+            out[slot[i]] = x
     return out.transpose(1, 0, 2)
 
 
@@ -140,32 +143,85 @@ def lowpass(v, lam):
     )
 
 
-class Prepared:
-    """One record in normalised units, with the quantities every regressor needs."""
+def turning_samples(u, step: int):
+    """The samples of `u` the plays need to be exact at every `step`-th sample.
 
-    def __init__(self, u, y, t, rate_scale, period, folds=None):
+    A play's state at the end of a stretch of input depends on the stretch only through its
+    suffix extrema: the samples above (or below) every later sample of the stretch. Any other
+    sample lies between a later maximum and a later minimum, and the clamps at those later
+    samples make the clamp at it irrelevant (the wiping-out property of the play). So the plays
+    run on every `step`-th sample plus the suffix extrema of the stretches between them give the
+    full-rate outputs at the kept samples exactly: no peak is missed, whatever the step. A
+    noisy stretch of L samples has about 2 ln L suffix extrema.
+
+    **Arguments:** `u` (T,), the full-rate input; `step`, the sub-sampling step.
+
+    **Returns:** `(index, keep)`: the full-rate indices of the samples to run the plays on, in
+    order, and the positions in that sequence of the samples 0, step, 2 step, ...
+    """
+    u = np.asarray(u, float)
+    n_seg = (len(u) - 1) // step
+    U = u[1 : 1 + n_seg * step].reshape(n_seg, step)
+    rev = U[:, ::-1]
+    # The max (min) over the samples after each one, within its stretch.
+    after_max = np.concatenate([np.full((n_seg, 1), -np.inf), np.maximum.accumulate(rev, axis=1)[:, :-1]], axis=1)[:, ::-1]
+    after_min = np.concatenate([np.full((n_seg, 1), np.inf), np.minimum.accumulate(rev, axis=1)[:, :-1]], axis=1)[:, ::-1]
+    is_max, is_min = U > after_max, U < after_min
+    kind = np.where(is_max & ~is_min, 1, np.where(is_min & ~is_max, -1, 0))
+    kind[:, -1] = 0
+    take = is_max | is_min
+    take[:, -1] = True
+    # Inside a run of suffix maxima (a falling stretch) or minima (a rising one) only the run's
+    # ends matter: along a rising stretch the latest lower bound and the earliest upper bound of
+    # the clamps dominate, so the samples in between change nothing.
+    seg, pos = np.nonzero(take)
+    k = kind[seg, pos]
+    same_seg = seg[1:-1] == seg[:-2]
+    inner = (k[1:-1] != 0) & same_seg & (seg[1:-1] == seg[2:]) & (k[:-2] == k[1:-1]) & (k[2:] == k[1:-1])
+    drop = np.concatenate([[False], inner, [False]]) if len(k) > 2 else np.zeros(len(k), bool)
+    index = np.concatenate([[0], 1 + seg[~drop] * step + pos[~drop]])
+    keep = np.searchsorted(index, np.arange(0, n_seg * step + 1, step))
+    return index, keep
+
+
+class Prepared:
+    """One record in normalised units, with the quantities every regressor needs.
+
+    With `play_u`, `play_rho` and `keep` (from `turning_samples`), the record is a sub-sampled
+    one whose plays run on the kept samples plus the turning samples between them, so that the
+    play columns equal the full-rate plays at the kept samples.
+    """
+
+    def __init__(self, u, y, t, rate_scale, period, folds=None, *, play_u=None, play_rho=None, keep=None):
         self.u, self.y, self.t = (np.asarray(a, float) for a in (u, y, t))
         self.dt = float(np.median(np.diff(self.t)))
         self.s = (self.t - self.t[0]) / max(self.t[-1] - self.t[0], 1e-300)
         self.rho = np.abs(np.gradient(self.u, self.t)) / rate_scale
         self.period = period
         self.folds = folds
+        self.play_u = self.u if play_u is None else np.asarray(play_u, float)
+        self.play_rho = self.rho if play_rho is None else np.asarray(play_rho, float)
+        self.keep = keep
         self._plain = None
 
     def plain_plays(self):
         if self._plain is None:
-            self._plain = plays(self.u, THRESHOLDS, np.full((1, N_PLAYS), self.u[0]))[0]
+            self._plain = plays(self.play_u, THRESHOLDS, np.full((1, N_PLAYS), self.u[0]), self.keep)[0]
         return self._plain
 
 
 def play_inputs(p: Prepared, cfg):
-    """The plays' input g (T,) and thresholds, (n,) or time-varying (T, n), for a configuration."""
-    g = p.u + (cfg.get("asymmetry") or 0.0) * p.u**2
+    """The plays' input g and thresholds, (n,) or time-varying, for a configuration.
+
+    Both are on the samples the plays run on (`p.play_u`, which `p.keep` reduces to the
+    record's samples).
+    """
+    g = p.play_u + (cfg.get("asymmetry") or 0.0) * p.play_u**2
     rate = cfg.get("rate_dependence")
     if rate is None:
         return g, THRESHOLDS
     form, k, e = rate
-    rp = p.rho[:, None] ** e
+    rp = p.play_rho[:, None] ** e
     r = THRESHOLDS[None, :] * (1 + k * rp) if form == "scale" else THRESHOLDS[None, :] + k * rp
     return g, r
 
@@ -177,7 +233,7 @@ def play_columns(p: Prepared, cfg):
         return p.plain_plays()
     g, r = play_inputs(p, cfg)
     x0 = np.full(N_PLAYS, g[0]) if turns is None else history_states(g[0], turns)
-    return plays(g, r, x0[None])[0]
+    return plays(g, r, x0[None], p.keep)[0]
 
 
 def linear_part(p: Prepared, cfg, play_cols=None):

@@ -125,11 +125,18 @@ def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) ->
 
     **Returns:** an `_effects.Prepared`.
     """
-    u = ((rec.u - sc.u_mid) / sc.u_half)[::step]
+    u_full = (rec.u - sc.u_mid) / sc.u_half
+    u = u_full[::step]
     y = ((rec.y - sc.y_mid) / sc.y_half)[::step]
     t = rec.t[::step]
     f = None
     if folds:
         blocks = np.minimum((np.arange(len(u)) * N_BLOCKS) // len(u), N_BLOCKS - 1)
         f = blocks % N_FOLDS
-    return _effects.Prepared(u, y, t, sc.rate_scale, sc.period, f)
+    if step == 1:
+        return _effects.Prepared(u, y, t, sc.rate_scale, sc.period, f)
+    # The plays see every turning point of the full-rate input, not only the kept samples: a
+    # sub-sampled sine's peaks fall between samples, and plays run on it would miss them.
+    index, keep = _effects.turning_samples(u_full, step)
+    rho = np.abs(np.gradient(u_full, rec.t))[index] / sc.rate_scale
+    return _effects.Prepared(u, y, t, sc.rate_scale, sc.period, f, play_u=u_full[index], play_rho=rho, keep=keep)
