@@ -11,10 +11,10 @@ from pathlib import Path
 
 from . import output as _io
 from ._common import CLIError
-from . import compensate, diagnose, fit, montecarlo, simulate, reproduce
+from . import compensate, diagnose, estimate, fit, montecarlo, simulate, reproduce
 
 # Each command module provides NAME, HELP, DESCRIPTION, add_arguments(parser) and run(args) -> int.
-COMMANDS = [simulate, diagnose, reproduce, montecarlo, fit, compensate]
+COMMANDS = [simulate, diagnose, reproduce, montecarlo, fit, compensate, estimate]
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,0 +1,167 @@
+"""`piest estimate`: the paper's online estimators on a measured record, streamed in chunks."""
+
+import json
+
+import numpy as np
+
+from . import output as _io
+from .._data.record import load_record
+from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+
+NAME = "estimate"
+HELP = "run an online weight estimator (the paper's RLS, RLS with forgetting, gradient) on a record"
+DESCRIPTION = """\
+Run an online estimator over DATA.csv (columns t, u, y) with a fixed play bank: thresholds from
+--thresholds, from a fitted model (--from-fit fit.json, its thresholds and initial states), or
+--plays uniform thresholds on [0, half the input's range) by default. The output offset is
+estimated as one more weight (--no-offset to leave it out). The record is streamed in chunks:
+memory does not grow with its length. Estimation starts once the input has visited both ends of
+its range (--start auto), when the plays no longer depend on their unknown states before the
+record began; --start 0 or a time in seconds overrides that. Writes
+  DIR/estimate.json  thresholds, initial_states (at the start), weights_final, offset_final,
+                     final_rmse (RMSE from the start to the end of the model with the final
+                     weights), estimator and settings, trajectory (t, weights, offset,
+                     error_rms at 2000 instants), pe (per window: start time, PE level of the
+                     normalised regressor, exciting), certificate (ContinuousRLS: bound on the
+                     relative weight error at the end of every window)
+  DIR/estimate.png   weights over time, prediction error, PE level per window, certificate
+
+estimators:  rls         the paper's continuous-time RLS (eqs. 5-6), --P0, --normalisation
+             forgetting  discrete RLS with forgetting factor --forgetting (1 = least squares)
+             gradient    normalised gradient with --gain
+example:  piest estimate run.csv --plays 20 --out est"""
+
+OUTPUTS = ("estimate.json", "estimate.png")
+ESTIMATORS = ("rls", "forgetting", "gradient")
+
+
+def _start(text: str):
+    if text == "auto":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        raise CLIError(f"--start: expected 'auto' or a time in seconds, got {text!r}") from None
+    if not (v >= 0 and np.isfinite(v)):
+        raise CLIError(f"--start must be a time >= 0 in seconds, got {text}")
+    return v
+
+
+def add_arguments(p):
+    p.add_argument("data", metavar="DATA.csv", help="the record (t, u, y)")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--thresholds", type=float_list, metavar="R1,R2,...", help="play thresholds")
+    src.add_argument("--from-fit", metavar="FIT.json", help="thresholds and initial states of a `piest fit` model")
+    src.add_argument("--plays", type=positive_int, default=20, help="uniform thresholds (default 20)")
+    p.add_argument("--estimator", choices=ESTIMATORS, default="rls", help="default: rls (the paper's)")
+    p.add_argument("--P0", type=positive_float, default=1e8,
+                   help="initial gain P0·I, for data scaled to magnitude one (default 1e8)")
+    p.add_argument("--normalisation", choices=("paper", "standard"), default="paper",
+                   help="rls: paper (m = 1 + h'h, divide by m^2; default) or standard (m^2 = 1 + h'h)")
+    p.add_argument("--forgetting", type=positive_float, default=1.0, help="forgetting factor in (0, 1] (default 1)")
+    p.add_argument("--gain", type=positive_float, default=1.0, help="gradient gain (default 1)")
+    p.add_argument("--no-offset", action="store_true", help="do not estimate an output offset")
+    p.add_argument("--start", type=str, default="auto", help="'auto' (default), or a time in seconds")
+    p.add_argument("--window", type=positive_float, metavar="SECONDS",
+                   help="PE window length (default: a tenth of the estimated part)")
+    add_output_options(p, "piest-estimate")
+
+
+def _thresholds(args, rec):
+    if args.thresholds is not None:
+        r = np.asarray(args.thresholds, float)
+        if r[0] != 0 or np.any(np.diff(r) <= 0):
+            raise CLIError("--thresholds must start at 0 and increase strictly, e.g. 0,1,2")
+        return r, None
+    if args.from_fit is not None:
+        try:
+            with open(args.from_fit) as f:
+                model = json.load(f)
+        except (OSError, ValueError) as e:
+            raise CLIError(f"--from-fit {args.from_fit}: cannot read a JSON model ({e})") from None
+        try:
+            r = np.asarray(model["thresholds"], float)
+            x0 = model.get("initial_states")
+            x0 = None if x0 is None else np.asarray(x0, float)
+        except (KeyError, TypeError, ValueError):
+            raise CLIError(f"--from-fit {args.from_fit}: no numeric `thresholds` in it") from None
+        if r.ndim != 1 or r.size < 1 or not np.all(np.isfinite(r)) or (x0 is not None and x0.shape != r.shape):
+            raise CLIError(f"--from-fit {args.from_fit}: `thresholds` and `initial_states` do not match")
+        return r, x0
+    half = 0.5 * float(np.ptp(rec.u))
+    return np.arange(args.plays) * half / args.plays, None
+
+
+def run(args) -> int:
+    import piest_jax as pj
+
+    from .._estimation.online import estimate_record, settled_start
+
+    if args.forgetting > 1:
+        raise CLIError(f"--forgetting must be in (0, 1], got {args.forgetting}")
+    start = _start(args.start)
+    out = _io.check_outputs(args.out, OUTPUTS, args.force)
+    rec = load_record(args.data)
+    r, x0 = _thresholds(args, rec)
+    if args.estimator == "rls":
+        est = pj.ContinuousRLS(args.P0, rec.dt, normalisation=args.normalisation)
+        settings = dict(P0=args.P0, dt=rec.dt, normalisation=args.normalisation)
+    elif args.estimator == "forgetting":
+        est = pj.ForgettingRLS(args.P0, args.forgetting)
+        settings = dict(P0=args.P0, forgetting=args.forgetting)
+    else:
+        est = pj.NormalisedGradient(args.gain)
+        settings = dict(gain=args.gain)
+    k0 = settled_start(rec.u) if start == "auto" else int(round((start - rec.t[0]) / rec.dt))
+    if not 0 <= k0 <= rec.n_samples - 2:
+        raise CLIError(f"--start {args.start} leaves fewer than 2 samples of the record")
+    window = None if args.window is None else int(round(args.window / rec.dt))
+    if window is not None and not 2 <= window <= rec.n_samples - k0:
+        raise CLIError(f"--window {args.window} s is not between 2 samples and the estimated part of the record")
+    res = estimate_record(est, rec.u, rec.y, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset,
+                          window=window, start=k0)
+    t0 = float(rec.t[0])
+    report = dict(
+        data=str(args.data), estimator=args.estimator, settings=settings, offset_estimated=not args.no_offset,
+        start_time=t0 + k0 * rec.dt, start_sample=k0, thresholds=res.thresholds, initial_states=res.initial_states,
+        weights_final=res.weights, offset_final=float(res.offset), final_rmse=res.final_rmse,
+        trajectory=dict(t=t0 + res.t, weights=res.weights_trajectory, offset=res.offset_trajectory,
+                        error_rms=res.error_rms),
+        pe=dict(window_s=(rec.n_samples - k0) // 10 * rec.dt if window is None else window * rec.dt,
+                t=t0 + res.window_t, level=res.pe_levels, exciting=res.exciting,
+                all_exciting=bool(np.all(np.asarray(res.exciting)))),
+        certificate=dict(t=t0 + res.bound_t, gram_bound=res.gram_bound),
+    )
+    written = [_io.write_json(out / "estimate.json", report)]
+    written.append(_io.save_figure(figure(report), out / "estimate.png", dpi=110))
+    print("\n".join(str(p) for p in written))
+    return 0
+
+
+def figure(report):
+    """The estimate's figure: weights, prediction error, PE level and certificate over time."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 7))
+    ax = fig.subplots(2, 2)
+    tr = report["trajectory"]
+    t, W = np.asarray(tr["t"]), np.asarray(tr["weights"])
+    for j in range(W.shape[1]):
+        ax[0, 0].plot(t, W[:, j], lw=0.8)
+    ax[0, 0].set(xlabel="t [s]", ylabel="weights", title=f"{report['estimator']}: weights")
+    ax[0, 1].semilogy(t, np.maximum(np.asarray(tr["error_rms"]), 1e-300), lw=0.8)
+    ax[0, 1].set(xlabel="t [s]", ylabel="RMS prediction error",
+                 title=f"a-priori error (final RMSE {report['final_rmse']:.3g})")
+    pe = report["pe"]
+    lv = np.asarray(pe["level"], float)
+    ax[1, 0].semilogy(np.asarray(pe["t"]), np.maximum(lv, 1e-300), "o-", ms=3)
+    ax[1, 0].set(xlabel="window start [s]", ylabel="PE level (normalised)", title="excitation per window")
+    c = report["certificate"]
+    if len(c["gram_bound"]):
+        ax[1, 1].semilogy(np.asarray(c["t"]), np.asarray(c["gram_bound"]), "o-", ms=3)
+        ax[1, 1].set(xlabel="t [s]", ylabel="bound on relative weight error", title="certificate (noise-free)")
+    else:
+        ax[1, 1].set_axis_off()
+        ax[1, 1].text(0.5, 0.5, "certificate: ContinuousRLS only", ha="center", va="center")
+    fig.tight_layout()
+    return fig
