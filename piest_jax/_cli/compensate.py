@@ -12,7 +12,6 @@ from .._operators.pi import PIOperator
 from ._common import CLIError, add_output_options
 
 NAME = "compensate"
-HELP = "compute the feedforward input that makes a fitted PI model follow a desired output"
 DESCRIPTION = """\
 Invert the model in MODEL.json (as written by `piest fit`: thresholds, weights, offset,
 initial_states) analytically and compute u = P^-1[desired - offset] for the desired output in

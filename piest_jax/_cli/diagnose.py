@@ -8,7 +8,6 @@ from .._diagnosis.effects import EFFECTS
 from ._common import CLIError, add_output_options
 
 NAME = "diagnose"
-HELP = "name the effects a plain PI model misses and show the gap shrink"
 DESCRIPTION = """\
 Fit a plain PI model (16 plays on a threshold grid, positive weights, output offset, relaxed
 initial states) to DATA.csv (columns t, u, y), locate where the residual is structured, then try

@@ -12,7 +12,6 @@ from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "fit"
-HELP = "fit thresholds, weights and offset of a PI model to a measured (t, u, y) record"
 DESCRIPTION = """\
 Fit y = sum_j w_j H_{r_j}[u] + offset to DATA.csv (header naming t, u, y) by least squares
 through the play scan (Levenberg-Marquardt by default), thresholds included, and write
