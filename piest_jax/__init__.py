@@ -78,6 +78,9 @@ _EXPORTS = {
     "evaluate_compensation": ("._identification.compensate", "evaluate_compensation"),
     "feedforward": ("._identification.compensate", "feedforward"),
     "linear_feedforward": ("._identification.compensate", "linear_feedforward"),
+    "PIModel": ("._identification.pi_model", "PIModel"),
+    "save_model": ("._identification.model_file", "save_model"),
+    "load_model": ("._identification.model_file", "load_model"),
     # diagnosis
     "diagnose": ("._diagnosis.diagnose", "diagnose"),
     "EFFECTS": ("._diagnosis.effects", "EFFECTS"),
@@ -178,7 +181,10 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.fit import fit_pi as fit_pi
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
+    from ._identification.model_file import load_model as load_model
+    from ._identification.model_file import save_model as save_model
     from ._identification.model_size import ModelSize as ModelSize
+    from ._identification.pi_model import PIModel as PIModel
     from ._identification.model_size import select_plays as select_plays
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
