@@ -53,6 +53,7 @@ SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"  # the test suite runs wit
 # common $m^2 = 1 + H_r^\top H_r$. (`piest reproduce all` writes the same figures and a JSON report.)
 
 # %%
+from IPython import get_ipython
 from IPython.display import display
 
 reports, figures = {}, []
@@ -65,6 +66,9 @@ for name in pj.paper.FIGURES:
         f"final {np.round(np.asarray(rep['weights_final']), 6)}  "
         f"time to 1 % = {rep['time_to_1pct']:.3f} s  (P0 = {rep['P0']:.0e})"
     )
+# The figure helper draws without pyplot (it never touches the backend); activating the inline
+# backend registers the hook that displays such figures.
+get_ipython().run_line_magic("matplotlib", "inline")
 for f in figures:
     display(f)
 

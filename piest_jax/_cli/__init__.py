@@ -124,7 +124,8 @@ def main(argv=None) -> int:
     """Run the `piest` command line in this process (`piest_jax.run_cli`).
 
     **Arguments:** `argv`, the words after `piest`, e.g. `["fit", "data.csv", "--out", "fitted"]`
-    (default: `sys.argv[1:]`). Like `piest`, it switches JAX to float64.
+    (default: `sys.argv[1:]`). Like `piest`, it switches JAX to float64 and matplotlib to its
+    file backend (Agg).
 
     **Returns:** the exit code: 0 success, 2 bad input (a one-line message on stderr), 1 an
     internal error, 130 interrupted, 143 terminated.
@@ -132,6 +133,11 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(_chosen(argv))
     args = parser.parse_args(argv)
+    try:
+        _require_plotting()
+    except CLIError as e:
+        print(f"piest {args.command}: error: {e}", file=sys.stderr)
+        return 2
     # The command-line tool is an application, not library code: it computes in float64 so the
     # numbers it reports do not depend on JAX's float32 default.
     import jax
@@ -180,6 +186,20 @@ def main(argv=None) -> int:
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _require_plotting() -> None:
+    """Every command draws its figures with matplotlib, which the `cli` extra installs; say so
+    before any computation rather than fail at the end."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise CLIError(
+            "matplotlib is needed to draw the figures; install the command line's extras with "
+            "pip install 'piest_jax[cli]'"
+        ) from None
+    # A file backend: the command writes PNGs and never opens a window.
+    matplotlib.use("Agg")
 
 
 def _silence_stdout() -> None:

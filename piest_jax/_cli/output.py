@@ -254,15 +254,17 @@ def write_csv(path, columns: dict) -> Path:
 
 def save_figure(fig, path, **kwargs) -> Path:
     """Save a matplotlib figure atomically and close it. **Returns:** the path written."""
-    import matplotlib.pyplot as plt
 
     path = Path(path)
     fmt, kwargs = figure_options(path, kwargs)
     try:
         return _atomic_write(path, lambda f: fig.savefig(f, format=fmt, **kwargs))
     finally:
-        # Figures drawn through pyplot stay registered there until closed.
-        plt.close(fig)
+        # Figures drawn through pyplot stay registered there until closed; others need nothing.
+        if getattr(fig.canvas, "manager", None) is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
 
 
 def _remove_debris(out: Path, names) -> None:
