@@ -22,7 +22,7 @@ def run():
         p = Path(d) / "rec.csv"
         p.write_text("t,u,y\n" + "\n".join(f"{a:.17g},{b:.17g},{c:.17g}" for a, b, c in zip(rec.t, rec.u, rec.y)))
         t0 = time.perf_counter()
-        rc = pj.run_cli(["diagnose", str(p), "--out", str(Path(d) / "out"), "--json"])
+        rc = pj.run_cli(["diagnose", str(p), "--out", str(Path(d) / "out"), "--quiet"])
         secs = time.perf_counter() - t0
         rep = json.loads((Path(d) / "out" / "report.json").read_text())
     res = dict(n_samples=10_000, seconds=secs, rc=rc, cpus=os.cpu_count(), load_average=os.getloadavg(), effects=rep["effects"],

@@ -27,7 +27,7 @@ def rel(path):
 
 def one(name, data, validate=None):
     out = RESULTS / f"diagnose_{name}"
-    argv = ["diagnose", rel(pj.dataset_path(data)), "--out", rel(out), "--force", "--json"]
+    argv = ["diagnose", rel(pj.dataset_path(data)), "--out", rel(out), "--force", "--quiet"]
     if validate:
         argv += ["--validate", rel(pj.dataset_path(validate))]
     t0 = time.time()
