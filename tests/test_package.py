@@ -130,3 +130,15 @@ def test_library_write_json_reads_as_the_cli_writes(tmp_path):
     cli = output.write_json(tmp_path / "cli.json", obj)
     assert lib.read_text() == cli.read_text()
     assert '"non_finite": {\n    "c": "inf"\n  }' in lib.read_text()
+
+
+def test_readme_notebooks_and_experiments_use_only_the_public_api():
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    files = [root / "README.md", *(root / "notebooks").rglob("*.py"), *(root / "notebooks").glob("*.ipynb"),
+             *(root / "experiments").rglob("*.py")]
+    private = [f"{p.relative_to(root)}:{i}" for p in files
+               for i, line in enumerate(p.read_text().splitlines(), 1) if re.search(r"piest_jax\._", line)]
+    assert len(files) > 15 and private == []
