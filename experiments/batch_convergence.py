@@ -34,7 +34,6 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import piest_jax as pj  # noqa: E402
-from piest_jax._cli import output as _io  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results"
 R = np.array([0.0, 10.0 / 3.0, 20.0 / 3.0])
@@ -171,8 +170,8 @@ def main(argv=None) -> int:
     rep["seed"] = args.seed
     rep["runtime_s"] = time.perf_counter() - t0
     args.out.mkdir(parents=True, exist_ok=True)
-    print(_io.save_figure(figure(rep), args.out / "batch_convergence.png", dpi=120))
-    print(_io.write_json(args.out / "batch_convergence.json", rep))
+    print(pj.save_figure(figure(rep), args.out / "batch_convergence.png", dpi=120))
+    print(pj.write_json(args.out / "batch_convergence.json", rep))
     return 0
 
 

@@ -13,17 +13,16 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax._diagnosis import hidden as _hidden  # noqa: E402
-from piest_jax._cli import main  # noqa: E402
+import piest_jax as pj  # noqa: E402
 
 
 def run():
-    rec, truth = _hidden.generate(("creep",), key=jax.random.PRNGKey(0), n_samples=10_000)
+    rec, truth = pj.hidden_effect_record(("creep",), key=jax.random.PRNGKey(0), n_samples=10_000)
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "rec.csv"
         p.write_text("t,u,y\n" + "\n".join(f"{a:.17g},{b:.17g},{c:.17g}" for a, b, c in zip(rec.t, rec.u, rec.y)))
         t0 = time.perf_counter()
-        rc = main(["diagnose", str(p), "--out", str(Path(d) / "out"), "--json"])
+        rc = pj.run_cli(["diagnose", str(p), "--out", str(Path(d) / "out"), "--quiet"])
         secs = time.perf_counter() - t0
         rep = json.loads((Path(d) / "out" / "report.json").read_text())
     res = dict(n_samples=10_000, seconds=secs, rc=rc, cpus=os.cpu_count(), load_average=os.getloadavg(), effects=rep["effects"],

@@ -41,9 +41,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from piest_jax import PIOperator
-from piest_jax._cli.output import write_json
-from piest_jax._operators.kernel import available
+from piest_jax import PIOperator, write_json
+from piest_jax import kernel_available as available
 
 N_PLAYS = 32
 

@@ -55,13 +55,18 @@ from jax import lax  # noqa: E402
 # An experiment script, not library code: float64 rows need x64 switched on.
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax import draw_case, draw_keys, make_settings, pe_map, summarise  # noqa: E402
-from piest_jax._cli import output as _io  # noqa: E402
-from piest_jax._excitation import montecarlo as _montecarlo  # noqa: E402
-from piest_jax._excitation.draw_metrics import draw_statistics  # noqa: E402
-from piest_jax._excitation.map_settings import numerical_tolerance  # noqa: E402
-from piest_jax._operators.play import _bank  # noqa: E402
-from piest_jax._excitation.condition import default_atol, window_stats  # noqa: E402
+from piest_jax import (  # noqa: E402
+    draw_case,
+    draw_keys,
+    draw_statistics,
+    make_settings,
+    numerical_tolerance,
+    pe_map,
+    play,
+    sharper_condition,
+    summarise,
+    write_json,
+)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -107,7 +112,8 @@ def _stages(key, settings, count):
     s = settings
     t = jnp.arange(s.n_samples, dtype=s.dtype) * s.dt
     keys = draw_keys(key, 0, count)
-    per_step = functools.partial(lax.map, batch_size=_montecarlo._DRAWS_PER_STEP)
+    # One draw per step, as `pe_map` runs them.
+    per_step = functools.partial(lax.map, batch_size=1)
     family = s.families[0]
 
     def case(k):
@@ -115,13 +121,12 @@ def _stages(key, settings, count):
 
     def bank(k):
         u, r, x0, _ = case(k)
-        return _bank(u, r, x0, s.play_method)
+        return play(u, r, x0, method=s.play_method)
 
     def windows(k):
         u, r, x0, _ = case(k)
-        H = _bank(u, r, x0, s.play_method)
-        return window_stats(H, u, s.window, s.stride, numerical_tolerance(u.dtype),
-                            default_atol(u, r))
+        H = play(u, r, x0, method=s.play_method)
+        return sharper_condition(H, u, s.window, stride=s.stride, rtol=numerical_tolerance(u.dtype))
 
     def full(k):
         return draw_statistics(*case(k), settings=s)
@@ -215,7 +220,7 @@ def main(argv=None) -> int:
         report["chunks"].append(r)
         print(f"chunk {c}: {r['seconds']:.2f} s for {max(d, c)} draws")
 
-    print(_io.write_json(args.out, report))
+    print(write_json(args.out, report))
     return 0
 
 

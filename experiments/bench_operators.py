@@ -133,9 +133,9 @@ def _numba_loops():
 def _kernel_status():
     # The compiled kernel is optional; a missing or unloadable build only drops its rows.
     try:
-        from piest_jax._operators import kernel as _kernel
+        from piest_jax import kernel_available
 
-        return (True, "") if _kernel.available() else (False, "the compiled kernel was not built")
+        return (True, "") if kernel_available() else (False, "the compiled kernel was not built")
     except Exception as e:  # an extension built from other sources can fail in many ways
         return False, f"the compiled kernel cannot be loaded ({type(e).__name__}: {e})"
 

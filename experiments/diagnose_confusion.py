@@ -20,16 +20,14 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax._diagnosis import diagnose as _diagnose  # noqa: E402
-from piest_jax._diagnosis import effects as _effects  # noqa: E402
-from piest_jax._diagnosis import hidden as _hidden  # noqa: E402
+import piest_jax as pj  # noqa: E402
 
 PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", "asymmetry"),
          ("initial_state", "rate_dependence"), ("rate_dependence", "offset_drift")]
 
 
 def jobs(per_class, pairs_per_class):
-    classes = [()] + [(e,) for e in _effects.EFFECTS] + PAIRS
+    classes = [()] + [(e,) for e in pj.EFFECTS] + PAIRS
     out = []
     # Interleaved by record index so that a run stopped early still covers every class.
     for i in range(max(per_class, pairs_per_class)):
@@ -47,14 +45,15 @@ def run(args, shard, n_shards, save):
         if j % n_shards != shard:
             continue
         k = jax.random.fold_in(jax.random.fold_in(key, ci), i)
-        rec, truth = _hidden.generate(cls, key=k, n_samples=args.samples)
+        rec, truth = pj.hidden_effect_record(cls, key=k, n_samples=args.samples)
         t1 = time.time()
-        s = _diagnose.search(rec)
-        _, rmse = _diagnose.evaluate(rec, s["scaling"], s["model_final"])
-        _, rmse0 = _diagnose.evaluate(rec, s["scaling"], s["model_base"])
+        # The whole diagnosis: its search names the effects, and it reports both models' RMSE over
+        # the whole record.
+        s = pj.diagnose(rec)
+        rmse, rmse0 = s["final_rmse"], s["baseline_rmse"]
         rows.append(dict(hidden=list(cls), named=s["effects"], pruned=s["pruned"], forms=truth["forms"],
                          noise_std=truth["noise_std"], baseline_rmse=rmse0, final_rmse=rmse,
-                         noise_est=s["noise_std"], seconds=time.time() - t1))
+                         noise_est=s["noise_std_estimate"], seconds=time.time() - t1))
         print(cls, truth["forms"], "->", s["effects"], f"rmse/noise={rmse / truth['noise_std']:.2f}",
               f"{time.time() - t1:.0f}s", flush=True)
         save(rows, time.time() - t0)
@@ -90,7 +89,7 @@ def totals(rows):
 
 
 def markdown(stats):
-    cols = ["none", *_effects.EFFECTS]
+    cols = ["none", *pj.EFFECTS]
     lines = ["| hidden \\ named first | " + " | ".join(cols) + " | right | RMSE ≤ 1.5σ when right |",
              "|---" * (len(cols) + 3) + "|"]
     for h, s in stats.items():

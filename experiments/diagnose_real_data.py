@@ -14,8 +14,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax._cli import main  # noqa: E402
-from piest_jax._data.record import builtin_path  # noqa: E402
+import piest_jax as pj  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "experiments" / "results"
@@ -28,11 +27,11 @@ def rel(path):
 
 def one(name, data, validate=None):
     out = RESULTS / f"diagnose_{name}"
-    argv = ["diagnose", rel(builtin_path(data)), "--out", rel(out), "--force", "--json"]
+    argv = ["diagnose", rel(pj.dataset_path(data)), "--out", rel(out), "--force", "--quiet"]
     if validate:
-        argv += ["--validate", rel(builtin_path(validate))]
+        argv += ["--validate", rel(pj.dataset_path(validate))]
     t0 = time.time()
-    rc = main(argv)
+    rc = pj.run_cli(argv)
     secs = time.time() - t0
     rep = json.loads((out / "report.json").read_text())
     keep = {k: rep.get(k) for k in ("effects", "baseline_rmse", "final_rmse", "noise_std_estimate",

@@ -39,9 +39,8 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax._cli import output as _io  # noqa: E402
-from piest_jax._data.record import builtin_path, load_record  # noqa: E402
-from piest_jax._identification.fit import fit_pi, uniform_pi  # noqa: E402
+import piest_jax as pj  # noqa: E402
+from piest_jax import fit_pi, uniform_pi  # noqa: E402
 
 OUT = Path(__file__).parent / "results"
 CHANDRA_NOISE = 0.06  # µm, data/README.md
@@ -107,8 +106,8 @@ def residual_by_segment(val, models, ptp_full, seconds=2.0):
 
 
 def aye(quick):
-    idr = load_record(builtin_path("piezo_aye2018_identification.csv"))
-    val = load_record(builtin_path("piezo_aye2018_validation.csv"))
+    idr = pj.load_dataset("piezo_aye2018_identification")
+    val = pj.load_dataset("piezo_aye2018_validation")
     uniform_ns = [2, 4, 6, 8, 10, 15, 20] if not quick else [4, 20]
     fitted_ns = [2, 3, 4, 6, 8] if not quick else [2, 4]
     mask = np.ones(idr.n_samples)
@@ -238,7 +237,7 @@ def aye(quick):
 
 
 def chandra(quick):
-    rec = load_record(builtin_path("piezo_chandra2023_1hz.csv"))
+    rec = pj.load_dataset("piezo_chandra2023_1hz")
     step = int(np.argmax(np.abs(rec.u) > 0))
     excited = rec.t >= rec.t[step] + 0.25
     # Rate independence: every 5th sample (1 kHz, 1000 samples per cycle) keeps the loop's shape
@@ -310,7 +309,7 @@ def figure_aye(val, f, base, res):
     a.set(xlabel="number of plays", ylabel="validation RMSE", title="model size")
     a.legend(fontsize=8)
     fig.tight_layout()
-    _io.save_figure(fig, OUT / "fit_real_data_aye.png", dpi=110)
+    pj.save_figure(fig, OUT / "fit_real_data_aye.png", dpi=110)
 
 
 def figure_chandra(rec, f, excited):
@@ -330,7 +329,7 @@ def figure_chandra(rec, f, excited):
            title=f"residual, RMSE {rmse(y[excited], rec.y[excited]):.3f} µm "
                  f"(noise ≈ {CHANDRA_NOISE} µm)")
     fig.tight_layout()
-    _io.save_figure(fig, OUT / "fit_real_data_chandra.png", dpi=110)
+    pj.save_figure(fig, OUT / "fit_real_data_chandra.png", dpi=110)
 
 
 def main():
@@ -339,7 +338,7 @@ def main():
     args = p.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     res = {"aye": aye(args.quick), "chandra": chandra(args.quick)}
-    path = _io.write_json(OUT / ("fit_real_data_quick.json" if args.quick else "fit_real_data.json"), res)
+    path = pj.write_json(OUT / ("fit_real_data_quick.json" if args.quick else "fit_real_data.json"), res)
     print(path)
 
 

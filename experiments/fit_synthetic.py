@@ -19,7 +19,6 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import piest_jax as pj  # noqa: E402
-from piest_jax._cli import output as _io  # noqa: E402
 
 OUT = Path(__file__).parent / "results"
 R = np.array([0.0, 0.37, 1.13])
@@ -93,7 +92,7 @@ def main():
         "compensation": {k: {kk: vv for kk, vv in v.items() if kk != "_c"} for k, v in comp.items()},
     }
     figure(t, yd, uniform, fitted, comp)
-    print(_io.write_json(OUT / "fit_synthetic.json", res))
+    print(pj.write_json(OUT / "fit_synthetic.json", res))
 
 
 def figure(t, yd, uniform, fitted, comp):
@@ -116,7 +115,7 @@ def figure(t, yd, uniform, fitted, comp):
         a.set(xlabel="time [s]", ylabel="tracking error", title=f"compensation, {name}")
         a.legend(fontsize=8)
     fig.tight_layout()
-    _io.save_figure(fig, OUT / "fit_synthetic.png", dpi=110)
+    pj.save_figure(fig, OUT / "fit_synthetic.png", dpi=110)
 
 
 if __name__ == "__main__":

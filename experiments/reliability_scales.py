@@ -40,8 +40,7 @@ def run(precision: str) -> dict:
     import numpy as np
 
     import piest_jax as pj
-    from piest_jax._data.record import load_record
-    from piest_jax._identification.fit import fit_pi
+    from piest_jax import fit_pi, load_record
 
     dtype = jnp.float64 if precision == "float64" else jnp.float32
     pairs = [(su, sy) for su in SCALES for sy in SCALES]
@@ -139,9 +138,9 @@ def main():
             sys.exit(proc.stderr)
         results[precision] = json.loads(proc.stdout.strip().splitlines()[-1])
         print(precision, json.dumps(results[precision]["long_record"]))
-    from piest_jax._cli import output as _io
+    import piest_jax as pj
 
-    print(_io.write_json(OUT, results))
+    print(pj.write_json(OUT, results))
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The paper's Figs. 5 and 6 and the measurement-noise study, into experiments/results/paper/.
 
-Figs. 5 and 6 are the same code as `piest reproduce` (`piest_jax._estimation.reproduce`); `noise` is the
-batch Monte Carlo study of `piest_jax._estimation.batch.noise_study` (bias and spread of the final estimate
+Figs. 5 and 6 are the same code as `piest reproduce` (`piest_jax.paper`); `noise` is the
+batch Monte Carlo study of `piest_jax.paper.noise_study` (bias and spread of the final estimate
 against the noise level, and the forgetting-factor trade-off after a weight jump).
 
     python experiments/reproduce_paper.py                 # fig5, fig6 and noise
@@ -17,9 +17,8 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from piest_jax._estimation import batch as _batch  # noqa: E402
-from piest_jax._cli import output as _io  # noqa: E402
-from piest_jax._estimation import reproduce as _reproduce  # noqa: E402
+import piest_jax as pj  # noqa: E402
+from piest_jax import paper  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "paper"
 
@@ -28,10 +27,10 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    choices = [*_reproduce.FIGURES, "noise"]
+    choices = [*paper.FIGURES, "noise"]
     p.add_argument("what", nargs="*", help=f"any of {choices} (default: all)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder")
-    p.add_argument("--P0", type=float, default=_reproduce.DEFAULT_P0, help="initial gain P0*I")
+    p.add_argument("--P0", type=float, default=paper.DEFAULT_P0, help="initial gain P0*I")
     p.add_argument("--normalisation", choices=["paper", "standard"], default="paper")
     p.add_argument("--replicates", type=int, default=64, help="noise draws per setting")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the noise study")
@@ -44,15 +43,15 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         if name == "noise":
             key = jax.random.PRNGKey(args.seed)
-            report = _batch.noise_study(key=key, replicates=args.replicates)
+            report = paper.noise_study(key=key, replicates=args.replicates)
             report["seed"] = args.seed
-            fig = _batch.noise_figure(report)
+            fig = paper.noise_figure(report)
         else:
-            full = _reproduce.reproduce(name, P0=args.P0, normalisation=args.normalisation)
-            fig, report = _reproduce.figure(full), _reproduce.public_report(full)
+            full = paper.reproduce(name, P0=args.P0, normalisation=args.normalisation)
+            fig, report = paper.figure(full), paper.public_report(full)
         report["runtime_s"] = time.perf_counter() - t0
-        print(_io.save_figure(fig, args.out / f"{name}.png", dpi=120))
-        print(_io.write_json(args.out / f"{name}.json", report))
+        print(pj.save_figure(fig, args.out / f"{name}.png", dpi=120))
+        print(pj.write_json(args.out / f"{name}.json", report))
     return 0
 
 

@@ -2,58 +2,196 @@
 
 Play and stop operators, the PI operator and its analytic inverse, adaptive weight estimation with
 persistent-excitation analysis, gradient-based threshold fitting, and model-discrepancy diagnosis.
+
+Every public name is imported on first use (PEP 562), so `import piest_jax`, and with it
+`piest --help`, does not load JAX, SciPy or matplotlib until something needs them.
 """
 
-from ._estimation.batch import BatchStats as BatchStats
-from ._estimation.batch import run_batch as run_batch
-from ._estimation.certificate import Certificate as Certificate
-from ._estimation.certificate import convergence_certificate as convergence_certificate
-from ._estimation.certificate import information_form as information_form
-from ._estimation.certificate import noise_covariance as noise_covariance
-from ._diagnosis.diagnose import diagnose as diagnose
-from ._estimation.estimators import AbstractEstimator as AbstractEstimator
-from ._estimation.estimators import Estimation as Estimation
-from ._estimation.estimators import estimate as estimate
-from ._estimation.gradient import NormalisedGradient as NormalisedGradient
-from ._diagnosis.hidden import generate as hidden_effect_record
-from ._excitation.pe import IndependenceCheck as IndependenceCheck
-from ._excitation.pe import assumption1_ratio as assumption1_ratio
-from ._excitation.pe import excited_plays as excited_plays
-from ._excitation.pe import lemma1_check as lemma1_check
-from ._excitation.pe import pe_level as pe_level
-from ._excitation.pe import window_starts as window_starts
-from ._excitation.pe import windowed_gram as windowed_gram
-from ._excitation.pe import windowed_pe_levels as windowed_pe_levels
-from ._excitation.pe import windowed_range as windowed_range
-from ._operators.pi import inverse as inverse
-from ._excitation.draw_metrics import draw_statistics as draw_statistics
-from ._excitation.families import draw_case as draw_case
-from ._excitation.map_report import summarise as summarise
-from ._excitation.map_settings import MapSettings as MapSettings
-from ._excitation.map_settings import make_settings as make_settings
-from ._excitation.map_settings import numerical_tolerance as numerical_tolerance
-from ._excitation.montecarlo import draw_family as draw_family
-from ._excitation.montecarlo import draw_keys as draw_keys
-from ._excitation.montecarlo import mesh_sharding as mesh_sharding
-from ._excitation.montecarlo import pe_map as pe_map
-from ._excitation.condition import sharper_condition as sharper_condition
-from ._identification.compensate import Compensation as Compensation
-from ._identification.compensate import admissible_states as admissible_states
-from ._identification.compensate import evaluate_compensation as evaluate_compensation
-from ._identification.compensate import feedforward as feedforward
-from ._identification.compensate import linear_feedforward as linear_feedforward
-from ._identification.fit import PIFit as PIFit
-from ._identification.fit import fit_pi as fit_pi
-from ._identification.fit import unexcited as unexcited
-from ._identification.fit import uniform_pi as uniform_pi
-from ._identification.model_size import ModelSize as ModelSize
-from ._identification.model_size import select_plays as select_plays
-from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
-from ._operators.pi import PIOperator as PIOperator
-from ._operators.play import play as play
-from ._operators.play import play_step as play_step
-from ._operators.play import stop as stop
-from ._estimation.rls import ContinuousRLS as ContinuousRLS
-from ._estimation.rls import ForgettingRLS as ForgettingRLS
+import importlib
+from importlib import metadata as _metadata
+from typing import TYPE_CHECKING
 
-__version__ = "0.1.0"
+try:
+    __version__ = _metadata.version("piest_jax")
+except _metadata.PackageNotFoundError:  # run from a source tree that was never installed
+    __version__ = "0+unknown"
+
+# Public name -> (private module, its name there).
+_EXPORTS = {
+    # operators
+    "AbstractHysteresisOperator": ("._operators.pi", "AbstractHysteresisOperator"),
+    "PIOperator": ("._operators.pi", "PIOperator"),
+    "inverse": ("._operators.pi", "inverse"),
+    "play": ("._operators.play", "play"),
+    "play_step": ("._operators.play", "play_step"),
+    "stop": ("._operators.play", "stop"),
+    "kernel_available": ("._operators.kernel.binding", "available"),
+    # estimation
+    "AbstractEstimator": ("._estimation.estimators", "AbstractEstimator"),
+    "Estimation": ("._estimation.estimators", "Estimation"),
+    "estimate": ("._estimation.estimators", "estimate"),
+    "ContinuousRLS": ("._estimation.rls", "ContinuousRLS"),
+    "ForgettingRLS": ("._estimation.rls", "ForgettingRLS"),
+    "NormalisedGradient": ("._estimation.gradient", "NormalisedGradient"),
+    "BatchStats": ("._estimation.batch", "BatchStats"),
+    "run_batch": ("._estimation.batch", "run_batch"),
+    "Certificate": ("._estimation.certificate", "Certificate"),
+    "convergence_certificate": ("._estimation.certificate", "convergence_certificate"),
+    "information_form": ("._estimation.certificate", "information_form"),
+    "noise_covariance": ("._estimation.certificate", "noise_covariance"),
+    # excitation, input signals and the Monte Carlo map
+    "time_grid": ("._excitation.signals", "time_grid"),
+    "sine": ("._excitation.signals", "sine"),
+    "multisine": ("._excitation.signals", "multisine"),
+    "triangle": ("._excitation.signals", "triangle"),
+    "chirp": ("._excitation.signals", "chirp"),
+    "INPUT_FAMILIES": ("._excitation.families", "FAMILIES"),
+    "draw_case": ("._excitation.families", "draw_case"),
+    "IndependenceCheck": ("._excitation.pe", "IndependenceCheck"),
+    "assumption1_ratio": ("._excitation.pe", "assumption1_ratio"),
+    "excited_plays": ("._excitation.pe", "excited_plays"),
+    "lemma1_check": ("._excitation.pe", "lemma1_check"),
+    "pe_level": ("._excitation.pe", "pe_level"),
+    "window_starts": ("._excitation.pe", "window_starts"),
+    "windowed_gram": ("._excitation.pe", "windowed_gram"),
+    "windowed_pe_levels": ("._excitation.pe", "windowed_pe_levels"),
+    "windowed_range": ("._excitation.pe", "windowed_range"),
+    "sharper_condition": ("._excitation.condition", "sharper_condition"),
+    "draw_statistics": ("._excitation.draw_metrics", "draw_statistics"),
+    "summarise": ("._excitation.map_report", "summarise"),
+    "MapSettings": ("._excitation.map_settings", "MapSettings"),
+    "make_settings": ("._excitation.map_settings", "make_settings"),
+    "numerical_tolerance": ("._excitation.map_settings", "numerical_tolerance"),
+    "draw_family": ("._excitation.montecarlo", "draw_family"),
+    "draw_keys": ("._excitation.montecarlo", "draw_keys"),
+    "mesh_sharding": ("._excitation.montecarlo", "mesh_sharding"),
+    "pe_map": ("._excitation.montecarlo", "pe_map"),
+    # identification
+    "PIFit": ("._identification.fit", "PIFit"),
+    "fit_pi": ("._identification.fit", "fit_pi"),
+    "unexcited": ("._identification.fit", "unexcited"),
+    "uniform_pi": ("._identification.fit", "uniform_pi"),
+    "ModelSize": ("._identification.model_size", "ModelSize"),
+    "select_plays": ("._identification.model_size", "select_plays"),
+    "Compensation": ("._identification.compensate", "Compensation"),
+    "admissible_states": ("._identification.compensate", "admissible_states"),
+    "evaluate_compensation": ("._identification.compensate", "evaluate_compensation"),
+    "feedforward": ("._identification.compensate", "feedforward"),
+    "linear_feedforward": ("._identification.compensate", "linear_feedforward"),
+    "PIModel": ("._identification.pi_model", "PIModel"),
+    "save_model": ("._identification.model_file", "save_model"),
+    "load_model": ("._identification.model_file", "load_model"),
+    # diagnosis
+    "diagnose": ("._diagnosis.diagnose", "diagnose"),
+    "EFFECTS": ("._diagnosis.effects", "EFFECTS"),
+    "noise_std": ("._diagnosis.scaling", "noise_std"),
+    "hidden_effect_record": ("._diagnosis.hidden", "generate"),
+    # data
+    "Record": ("._data.record", "Record"),
+    "DataError": ("._data.record", "DataError"),
+    "load_record": ("._data.record", "load_record"),
+    "datasets": ("._data.record", "datasets"),
+    "dataset_path": ("._data.record", "dataset_path"),
+    "load_dataset": ("._data.record", "load_dataset"),
+    # reports
+    "write_json": ("._report", "write_json"),
+    "save_figure": ("._report", "save_figure"),
+    # the command line, in-process
+    "run_cli": ("._cli", "main"),
+}
+# Public submodules.
+_SUBMODULES = ("paper",)
+
+__all__ = sorted([*_EXPORTS, *_SUBMODULES])
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
+    try:
+        module, attr = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'piest_jax' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module, __name__), attr)
+    globals()[name] = value  # the next lookup is a plain attribute access
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
+
+
+if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr__` imports
+    from . import paper as paper
+    from ._cli import main as run_cli  # noqa: F401
+    from ._data.record import DataError as DataError
+    from ._data.record import Record as Record
+    from ._data.record import dataset_path as dataset_path
+    from ._data.record import datasets as datasets
+    from ._data.record import load_dataset as load_dataset
+    from ._data.record import load_record as load_record
+    from ._diagnosis.diagnose import diagnose as diagnose
+    from ._diagnosis.effects import EFFECTS as EFFECTS
+    from ._diagnosis.hidden import generate as hidden_effect_record  # noqa: F401
+    from ._diagnosis.scaling import noise_std as noise_std
+    from ._estimation.batch import BatchStats as BatchStats
+    from ._estimation.batch import run_batch as run_batch
+    from ._estimation.certificate import Certificate as Certificate
+    from ._estimation.certificate import convergence_certificate as convergence_certificate
+    from ._estimation.certificate import information_form as information_form
+    from ._estimation.certificate import noise_covariance as noise_covariance
+    from ._estimation.estimators import AbstractEstimator as AbstractEstimator
+    from ._estimation.estimators import Estimation as Estimation
+    from ._estimation.estimators import estimate as estimate
+    from ._estimation.gradient import NormalisedGradient as NormalisedGradient
+    from ._estimation.rls import ContinuousRLS as ContinuousRLS
+    from ._estimation.rls import ForgettingRLS as ForgettingRLS
+    from ._excitation.condition import sharper_condition as sharper_condition
+    from ._excitation.draw_metrics import draw_statistics as draw_statistics
+    from ._excitation.families import FAMILIES as INPUT_FAMILIES  # noqa: F401
+    from ._excitation.families import draw_case as draw_case
+    from ._excitation.map_report import summarise as summarise
+    from ._excitation.map_settings import MapSettings as MapSettings
+    from ._excitation.map_settings import make_settings as make_settings
+    from ._excitation.map_settings import numerical_tolerance as numerical_tolerance
+    from ._excitation.montecarlo import draw_family as draw_family
+    from ._excitation.montecarlo import draw_keys as draw_keys
+    from ._excitation.montecarlo import mesh_sharding as mesh_sharding
+    from ._excitation.montecarlo import pe_map as pe_map
+    from ._excitation.pe import IndependenceCheck as IndependenceCheck
+    from ._excitation.pe import assumption1_ratio as assumption1_ratio
+    from ._excitation.pe import excited_plays as excited_plays
+    from ._excitation.pe import lemma1_check as lemma1_check
+    from ._excitation.pe import pe_level as pe_level
+    from ._excitation.pe import window_starts as window_starts
+    from ._excitation.pe import windowed_gram as windowed_gram
+    from ._excitation.pe import windowed_pe_levels as windowed_pe_levels
+    from ._excitation.pe import windowed_range as windowed_range
+    from ._excitation.signals import chirp as chirp
+    from ._excitation.signals import multisine as multisine
+    from ._excitation.signals import sine as sine
+    from ._excitation.signals import time_grid as time_grid
+    from ._excitation.signals import triangle as triangle
+    from ._identification.compensate import Compensation as Compensation
+    from ._identification.compensate import admissible_states as admissible_states
+    from ._identification.compensate import evaluate_compensation as evaluate_compensation
+    from ._identification.compensate import feedforward as feedforward
+    from ._identification.compensate import linear_feedforward as linear_feedforward
+    from ._identification.fit import PIFit as PIFit
+    from ._identification.fit import fit_pi as fit_pi
+    from ._identification.fit import unexcited as unexcited
+    from ._identification.fit import uniform_pi as uniform_pi
+    from ._identification.model_file import load_model as load_model
+    from ._identification.model_file import save_model as save_model
+    from ._identification.model_size import ModelSize as ModelSize
+    from ._identification.pi_model import PIModel as PIModel
+    from ._identification.model_size import select_plays as select_plays
+    from ._operators.kernel.binding import available as kernel_available  # noqa: F401
+    from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
+    from ._operators.pi import PIOperator as PIOperator
+    from ._operators.pi import inverse as inverse
+    from ._operators.play import play as play
+    from ._operators.play import play_step as play_step
+    from ._operators.play import stop as stop
+    from ._report import save_figure as save_figure
+    from ._report import write_json as write_json

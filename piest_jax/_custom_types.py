@@ -1,6 +1,9 @@
 """Shape aliases used across the package, in one place.
 
-They document shapes in signatures; runtime checking is switched on in the tests only.
+They document shapes in signatures and are not checked at run time, in the library or in the
+tests: the public functions validate their inputs themselves and raise `ValueError`s that name the
+argument and the problem (tested message by message), which a runtime type checker (jaxtyping's
+import hook with beartype) would pre-empt with its own `TypeCheckError`.
 """
 
 from typing import TypeAlias

@@ -3,13 +3,8 @@
 import numpy as np
 import pytest
 
-from piest_jax._data.record import (
-    DataError,
-    Record,
-    builtin_datasets,
-    builtin_path,
-    load_record,
-)
+import piest_jax as pj
+from piest_jax import DataError, Record, dataset_path, datasets, load_dataset, load_record
 
 
 def _rows(n=10, dt=0.5):
@@ -225,24 +220,87 @@ def test_data_error_is_a_value_error():
     assert issubclass(DataError, ValueError)
 
 
-def test_builtin_data_files_all_load():
-    names = builtin_datasets()
-    assert len(names) >= 6
+def test_shipped_data_sets_all_load():
+    names = datasets()
+    assert len(names) >= 6 and "piezo_aye2018_identification" in names
     for name in names:
-        path = builtin_path(name)
+        path = dataset_path(name)
+        assert path.name == f"{name}.csv" and path.is_file()
         if name.startswith("bh_"):
             # B-H loops: columns loop, H, B (no time axis), read with NumPy.
             data = np.loadtxt(path, delimiter=",", skiprows=1)
             assert data.shape[1] == 3 and np.all(np.isfinite(data))
             assert path.read_text().splitlines()[0] == "loop,H,B"
+            with pytest.raises(DataError, match="no header row naming the columns t, u and y"):
+                load_dataset(name)
         else:
-            rec = load_record(path)
+            rec = load_dataset(name)
             assert rec.n_samples > 1000
             assert np.all(np.diff(rec.t) > 0)
-    val = load_record(builtin_path("piezo_aye2018_validation.csv"))
+            assert rec.source == str(path)
+            np.testing.assert_array_equal(rec.y, load_record(path).y)
+    val = load_dataset("piezo_aye2018_validation")
     assert "desired" in val.extras
+    # The file name is accepted as well as the data set's name.
+    assert dataset_path("piezo_aye2018_validation.csv") == dataset_path("piezo_aye2018_validation")
 
 
-def test_builtin_path_unknown_name():
+def test_dataset_path_unknown_name():
     with pytest.raises(ValueError, match=r"no shipped data set 'nope\.csv'; available: .*piezo"):
-        builtin_path("nope.csv")
+        dataset_path("nope.csv")
+
+
+def test_public_names_are_the_loaders():
+    assert pj.Record is Record and pj.load_record is load_record and issubclass(pj.DataError, ValueError)
+
+
+def test_from_arrays_equals_the_file(tmp_path):
+    t, u, y = _rows(20)
+    d = 3 * u
+    from_file = load_record(_csv(tmp_path, _table(t, u, y, header="t,u,y,desired", extra=d)))
+    rec = Record.from_arrays(list(t), u, y.astype(np.float32), extras={"desired": d})
+    for name in ("t", "u"):
+        np.testing.assert_array_equal(getattr(rec, name), getattr(from_file, name))
+    # A float32 column is widened, not kept in float32.
+    assert rec.y.dtype == np.float64
+    np.testing.assert_array_equal(rec.y, y.astype(np.float32).astype(np.float64))
+    np.testing.assert_array_equal(rec.extras["desired"], from_file.extras["desired"])
+    assert rec.source == "<arrays>"
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda t, u, y: (t, u[:-1], y), r"<arrays>: column `u` has 19 samples but `t` has 20"),
+        (lambda t, u, y: (t, u.reshape(4, 5), y), r"column `u` must be one-dimensional, got shape \(4, 5\)"),
+        (lambda t, u, y: (t, u + 1j, y), r"column `u` is not real numbers \(dtype complex128\)"),
+        (lambda t, u, y: (t, u, np.where(t > 3, np.nan, y)), r"column `y` holds nan"),
+        (lambda t, u, y: (t[::-1], u, y), r"time is not strictly increasing"),
+        (lambda t, u, y: (t[:3], u[:3], y[:3]), r"only 3 samples; at least 8 are needed"),
+        (lambda t, u, y: (t**1.5, u, y), r"non-uniform sampling"),
+    ],
+)
+def test_from_arrays_rejects_bad_columns(change, message):
+    t, u, y = _rows(20)
+    with pytest.raises(DataError, match=message):
+        Record.from_arrays(*change(t, u, y))
+
+
+def test_from_arrays_resamples_when_asked():
+    t = np.array([0.0, 1.0, 2.0, 3.5, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0])
+    rec = Record.from_arrays(t, 2 * t, -t, resample=True)
+    np.testing.assert_allclose(rec.t, np.arange(10.0))
+    np.testing.assert_allclose(rec.u, 2 * rec.t)
+
+
+def test_from_dataframe_matches_from_arrays():
+    pd = pytest.importorskip("pandas")
+    t, u, y = _rows(12)
+    df = pd.DataFrame({"T": t, "u": u, "Y": y, "desired": 2 * u})
+    rec = Record.from_dataframe(df)
+    ref = Record.from_arrays(t, u, y, extras={"desired": 2 * u})
+    for name in ("t", "u", "y"):
+        np.testing.assert_array_equal(getattr(rec, name), getattr(ref, name))
+    np.testing.assert_array_equal(rec.extras["desired"], ref.extras["desired"])
+    with pytest.raises(DataError, match=r"<DataFrame>: missing column\(s\) y: the frame has t, u"):
+        Record.from_dataframe(df[["T", "u"]])

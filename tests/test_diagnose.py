@@ -161,9 +161,10 @@ def test_cli_writes_the_report(csv_files, tmp_path, capsys):
     argv = ["diagnose", str(csv_files[0]), "--validate", str(csv_files[1]), "--out", str(out), "--json",
             "--candidates", "delay", "--max-effects", "1"]
     assert main(argv) == 0
-    printed = capsys.readouterr().out.split()
-    assert printed == [str(out / "report.json")]
+    printed = capsys.readouterr().out
     rep = json.loads((out / "report.json").read_text())
+    # --json prints the report itself, the same text as the file.
+    assert printed == (out / "report.json").read_text()
     for k in ("effects", "baseline_rmse", "final_rmse", "noise_std_estimate", "candidates", "where", "validation"):
         assert k in rep
     assert rep["effects"][0] == "delay"

@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-data() { python -c "from piest_jax._data import builtin_path; print(builtin_path('$1'))"; }
+data() { python -c "import piest_jax as pj; print(pj.dataset_path('$1'))"; }
 AYE_ID=$(data piezo_aye2018_identification.csv)
 AYE_VAL=$(data piezo_aye2018_validation.csv)
 

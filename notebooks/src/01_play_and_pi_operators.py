@@ -40,7 +40,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax._excitation import signals as _signals
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"  # the test suite runs with small sizes
 print("piest_jax", pj.__version__, "| jax", jax.__version__, "| backend", jax.default_backend())
@@ -54,8 +53,8 @@ print("piest_jax", pj.__version__, "| jax", jax.__version__, "| backend", jax.de
 # reversal.
 
 # %%
-t = _signals.time_grid(2.0, 1e-3)
-u = _signals.sine(t, amplitude=5.0, frequency=1.0)
+t = pj.time_grid(2.0, 1e-3)
+u = pj.sine(t, amplitude=5.0, frequency=1.0)
 r = jnp.array([0.0, 1.0, 2.0, 3.0])
 X = pj.play(u, r)  # (T, n): one column per threshold
 print("input", u.shape, "-> play bank", X.shape)
@@ -119,8 +118,8 @@ fig.tight_layout()
 thresholds = jnp.array([0.0, 10 / 3, 20 / 3])
 weights = jnp.array([1.0, 3.0, 5.0])
 op = pj.PIOperator(thresholds, weights)
-t5 = _signals.time_grid(1.0, 1e-3)
-u5 = _signals.sine(t5, amplitude=10.0, frequency=5.0)
+t5 = pj.time_grid(1.0, 1e-3)
+u5 = pj.sine(t5, amplitude=10.0, frequency=5.0)
 y5 = op(u5)
 H5 = op.regressor(u5)
 print("n_plays =", op.n_plays, "| H:", H5.shape, "| max |y - H W| =",
@@ -176,7 +175,7 @@ fig.tight_layout()
 inv = op.inverse()
 print("inverse thresholds", np.round(np.asarray(inv.thresholds), 4))
 print("inverse weights   ", np.round(np.asarray(inv.weights), 4))
-v = _signals.multisine(t5, [40.0, 15.0], [2.0, 7.0])  # a desired output
+v = pj.multisine(t5, [40.0, 15.0], [2.0, 7.0])  # a desired output
 u_ff = inv(v)
 print("max |op(inverse(op)(v)) - v| =", float(jnp.max(jnp.abs(op(u_ff) - v))))
 
@@ -211,7 +210,7 @@ except ValueError as e:
 
 # %%
 T_long = 2_000 if SMALL else 200_000
-u_long = _signals.multisine(jnp.arange(T_long) * 1e-4, [8.0, 3.0], [3.0, 41.0])
+u_long = pj.multisine(jnp.arange(T_long) * 1e-4, [8.0, 3.0], [3.0, 41.0])
 r_bank = jnp.linspace(0.0, 8.0, 16)
 outs, times = {}, {}
 for method in ("scan", "associative"):

@@ -38,7 +38,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax._estimation import reproduce as _reproduce
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"  # the test suite runs with small sizes
 
@@ -58,17 +57,17 @@ from IPython import get_ipython
 from IPython.display import display
 
 reports, figures = {}, []
-for name in _reproduce.FIGURES:
-    rep = _reproduce.reproduce(name)
+for name in pj.paper.FIGURES:
+    rep = pj.paper.reproduce(name)
     reports[name] = rep
-    figures.append(_reproduce.figure(rep))
+    figures.append(pj.paper.figure(rep))
     print(
         f"{name}: {rep['input']:<36} true {np.asarray(rep['weights_true'])}  "
         f"final {np.round(np.asarray(rep['weights_final']), 6)}  "
         f"time to 1 % = {rep['time_to_1pct']:.3f} s  (P0 = {rep['P0']:.0e})"
     )
-# The figure helper also serves the command line, so it selects a file backend; return to inline.
-plt.close("all")
+# The figure helper draws without pyplot (it never touches the backend); activating the inline
+# backend registers the hook that displays such figures.
 get_ipython().run_line_magic("matplotlib", "inline")
 for f in figures:
     display(f)
@@ -80,10 +79,10 @@ for f in figures:
 # forgetting, and the normalised gradient on the Fig. 5 data:
 
 # %%
-case = _reproduce.CASES["fig5"]
+case = pj.paper.CASES["fig5"]
 t = jnp.asarray(case.time())
 u = jnp.asarray(case.input())
-r = jnp.asarray(_reproduce.THRESHOLDS)
+r = jnp.asarray(pj.paper.THRESHOLDS)
 W = jnp.asarray(case.weights)
 op = pj.PIOperator(r, W)
 H = op.regressor(u)

@@ -44,7 +44,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax._excitation.families import FAMILIES
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 N_DRAWS = 1400 if SMALL else 14_000  # a multiple of the 7 families
@@ -92,7 +91,7 @@ confusion(sharp, "sharper condition")
 c1n = np.maximum(res["c1_normalised"], 1e-18)
 err = np.maximum(res["weight_error"], 1e-18)
 fig, (a1x, a2x) = plt.subplots(1, 2, figsize=(11, 4))
-for k, fam in enumerate(FAMILIES):
+for k, fam in enumerate(pj.INPUT_FAMILIES):
     sel = res["family"] == k
     a1x.loglog(res["rho"][sel], c1n[sel], ".", ms=2, label=fam)
 a1x.axvline(1, color="k", lw=0.8, ls=":")
@@ -110,7 +109,7 @@ fig.tight_layout()
 
 # %%
 print(f"{'family':<10}{'draws':>7}{'A1':>7}{'sharper':>9}{'PE':>7}{'median RLS error':>18}")
-for k, fam in enumerate(FAMILIES):
+for k, fam in enumerate(pj.INPUT_FAMILIES):
     sel = res["family"] == k
     if not sel.any():
         continue

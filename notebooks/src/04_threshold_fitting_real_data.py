@@ -37,7 +37,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import piest_jax as pj
-from piest_jax._data.record import builtin_path, load_record
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 STEP = 50 if SMALL else 20  # decimation of the 5 kHz record
@@ -52,7 +51,7 @@ CANDIDATES = (2, 4) if SMALL else (1, 2, 3, 4, 6, 8)
 # sampling rate, and the PI operator is rate independent).
 
 # %%
-rec = load_record(builtin_path("piezo_chandra2023_1hz.csv"))
+rec = pj.load_dataset("piezo_chandra2023_1hz")
 start = int(np.searchsorted(rec.t, 3.2))
 t = rec.t[start::STEP]
 u = jnp.asarray(rec.u[start::STEP])
@@ -130,8 +129,8 @@ fig.tight_layout()
 # (bursts with pauses). A model that only fits noise would fail on the second.
 
 # %%
-ident = load_record(builtin_path("piezo_aye2018_identification.csv"))
-valid = load_record(builtin_path("piezo_aye2018_validation.csv"))
+ident = pj.load_dataset("piezo_aye2018_identification")
+valid = pj.load_dataset("piezo_aye2018_validation")
 cut = 500 if SMALL else None
 ui, yi = jnp.asarray(ident.u[:cut]), jnp.asarray(ident.y[:cut])
 uv, yv = jnp.asarray(valid.u[:cut]), jnp.asarray(valid.y[:cut])

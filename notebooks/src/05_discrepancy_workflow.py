@@ -39,8 +39,6 @@ jax.config.update("jax_enable_x64", True)
 import matplotlib.pyplot as plt
 
 import piest_jax as pj
-from piest_jax._data.record import builtin_path, load_record
-from piest_jax._diagnosis.diagnose import noise_std
 
 SMALL = os.environ.get("PIEST_NOTEBOOK_SMALL") == "1"
 # The full search tries every effect; the small run (for the test suite) tries two.
@@ -57,7 +55,7 @@ SEARCH = dict(max_effects=1, candidates=("delay", "linear_dynamics")) if SMALL e
 # %%
 rec, truth = pj.hidden_effect_record(("delay",), key=jax.random.key(1), n_samples=800)
 print("hidden:", truth["forms"], f"| true noise std {truth['noise_std']:.4f}")
-print(f"noise floor estimated from the data: {noise_std(rec.y):.4f}")
+print(f"noise floor estimated from the data: {pj.noise_std(rec.y):.4f}")
 
 report = pj.diagnose(rec, **SEARCH)
 print("named:", report["effects"])
@@ -112,8 +110,8 @@ show(report, "synthetic record, hidden delay")
 # run's drift) are carried over to it.
 
 # %%
-ident = load_record(builtin_path("piezo_aye2018_identification.csv"))
-valid = load_record(builtin_path("piezo_aye2018_validation.csv"))
+ident = pj.load_dataset("piezo_aye2018_identification")
+valid = pj.load_dataset("piezo_aye2018_validation")
 if SMALL:
     ident, valid = ident.slice(0, 1000), valid.slice(0, 1000)
 real = pj.diagnose(ident, valid, **SEARCH)

@@ -9,12 +9,34 @@ import sys
 import threading
 from pathlib import Path
 
+import importlib
+
 from . import output as _io
 from ._common import CLIError
-from . import compensate, diagnose, estimate, fit, montecarlo, simulate, reproduce
 
-# Each command module provides NAME, HELP, DESCRIPTION, add_arguments(parser) and run(args) -> int.
-COMMANDS = [simulate, diagnose, reproduce, montecarlo, fit, compensate, estimate]
+# Each command's one-line help. Its module (`_cli/<name>.py`, with NAME, DESCRIPTION,
+# add_arguments(parser) and run(args) -> int) is imported only when the command is chosen, so
+# `piest --help` and argument errors answer without loading JAX.
+HELP = {
+    "simulate": "run a PI operator on a sine, multi-sine, triangle, chirp or a CSV's u",
+    "diagnose": "name the effects a plain PI model misses and show the gap shrink",
+    "reproduce": "reproduce the paper's Figs. 5 and 6 (RLS weight estimation) as figures and JSON",
+    "montecarlo": "map PE levels against Assumption 1 over random inputs, thresholds and initial states",
+    "fit": "fit thresholds, weights and offset of a PI model to a measured (t, u, y) record",
+    "compensate": "compute the feedforward input that makes a fitted PI model follow a desired output",
+    "estimate": "run an online weight estimator (the paper's RLS, RLS with forgetting, gradient) on a record",
+}
+
+
+def command_module(name: str):
+    """The module of the command `name` (a key of `HELP`)."""
+    return importlib.import_module(f".{name}", __name__)
+
+
+def __getattr__(name: str):
+    if name == "COMMANDS":  # every command's module, for tests and documentation
+        return [command_module(n) for n in HELP]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -59,7 +81,14 @@ def _protect_inputs(args) -> None:
                 raise CLIError(f"--out {out} would overwrite the input file {src}; choose another --out")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _version() -> str:
+    from .. import __version__
+
+    return f"piest {__version__}"
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser: every command's options, or only `command`'s when one is named."""
     parser = _Parser(
         prog="piest",
         description=(
@@ -69,11 +98,16 @@ def build_parser() -> argparse.ArgumentParser:
             "143 terminated (kill), 141 the reader of the output went away."
         ),
     )
+    parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for mod in COMMANDS:
+    for name, text in HELP.items():
+        if command is not None and name != command:
+            sub.add_parser(name, help=text)
+            continue
+        mod = command_module(name)
         p = sub.add_parser(
-            mod.NAME,
-            help=mod.HELP,
+            name,
+            help=text,
             description=mod.DESCRIPTION,
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
@@ -82,10 +116,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _chosen(argv) -> str:
+    """The command named on the command line ("" for none): the first word not an option."""
+    return next((a for a in argv if not a.startswith("-")), "")
+
+
 def main(argv=None) -> int:
-    """Entry point of `piest`; returns the process exit code."""
-    parser = build_parser()
+    """Run the `piest` command line in this process (`piest_jax.run_cli`).
+
+    **Arguments:** `argv`, the words after `piest`, e.g. `["fit", "data.csv", "--out", "fitted"]`
+    (default: `sys.argv[1:]`). Like `piest`, it switches JAX to float64 and matplotlib to its
+    file backend (Agg).
+
+    **Returns:** the exit code: 0 success, 2 bad input (a one-line message on stderr), 1 an
+    internal error, 130 interrupted, 143 terminated.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(_chosen(argv))
     args = parser.parse_args(argv)
+    try:
+        _require_plotting()
+    except CLIError as e:
+        print(f"piest {args.command}: error: {e}", file=sys.stderr)
+        return 2
     # The command-line tool is an application, not library code: it computes in float64 so the
     # numbers it reports do not depend on JAX's float32 default.
     import jax
@@ -134,6 +187,20 @@ def main(argv=None) -> int:
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _require_plotting() -> None:
+    """Every command draws its figures with matplotlib, which the `cli` extra installs; say so
+    before any computation rather than fail at the end."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise CLIError(
+            "matplotlib is needed to draw the figures; install the command line's extras with "
+            "pip install 'piest_jax[cli]'"
+        ) from None
+    # A file backend: the command writes PNGs and never opens a window.
+    matplotlib.use("Agg")
 
 
 def _silence_stdout() -> None:

@@ -1,8 +1,5 @@
 """`piest compensate`: the feedforward input that cancels a fitted model's hysteresis."""
 
-import json
-from pathlib import Path
-
 import numpy as np
 
 from . import output as _io
@@ -12,7 +9,6 @@ from .._operators.pi import PIOperator
 from ._common import CLIError, add_output_options
 
 NAME = "compensate"
-HELP = "compute the feedforward input that makes a fitted PI model follow a desired output"
 DESCRIPTION = """\
 Invert the model in MODEL.json (as written by `piest fit`: thresholds, weights, offset,
 initial_states) analytically and compute u = P^-1[desired - offset] for the desired output in
@@ -46,35 +42,16 @@ def add_arguments(p):
 
 
 def load_model(path):
-    """Thresholds, weights, offset and initial states from a `piest fit` JSON file."""
-    path = Path(path)
-    if not path.is_file():
-        raise CLIError(f"{path}: no such file")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CLIError(f"{path}: not a JSON file ({e})") from None
-    if not isinstance(d, dict):
-        raise CLIError(f"{path}: expected a JSON object as written by `piest fit`")
-    missing = [k for k in ("thresholds", "weights") if k not in d]
-    if missing:
-        raise CLIError(f"{path}: missing {', '.join(missing)} (is it a `piest fit` fit.json?)")
-    try:
-        r = np.asarray(d["thresholds"], dtype=float)
-        w = np.asarray(d["weights"], dtype=float)
-        c = float(d.get("offset", 0.0))
-        x0 = np.asarray(d.get("initial_states", 0.0), dtype=float)
-    except (TypeError, ValueError) as e:
-        raise CLIError(f"{path}: thresholds, weights, offset must be numbers ({e})") from None
-    if r.ndim != 1 or r.shape != w.shape:
-        raise CLIError(f"{path}: thresholds {r.shape} and weights {w.shape} must be equal vectors")
-    if r.size == 0:
-        raise CLIError(f"{path}: the model has no plays (empty thresholds and weights)")
-    if x0.ndim > 1 or x0.size not in (1, r.size):
-        raise CLIError(f"{path}: initial_states has {x0.size} entries for {r.size} plays")
-    if not all(np.all(np.isfinite(a)) for a in (r, w, c, x0)):
-        raise CLIError(f"{path}: thresholds, weights, offset and initial_states must be finite")
-    return r, w, c, x0
+    """Thresholds, weights, offset and initial states from a model file (`piest fit`'s fit.json),
+    read by the library's `load_model`, so errors name the file and the problem."""
+    from .._identification.model_file import load_model as read_model
+    from .._identification.pi_model import PIModel
+
+    model = read_model(path)
+    if not isinstance(model, PIModel):
+        raise CLIError(f"{path}: a {type(model).__name__} has no closed-form inverse")
+    return tuple(np.asarray(a) for a in (model.thresholds, model.weights, model.offset,
+                                         model.initial_states))
 
 
 def load_desired(path, column):

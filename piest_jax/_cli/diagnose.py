@@ -4,11 +4,11 @@ import numpy as np
 
 from . import output as _io
 from .._data.record import load_record
+from .._report import json_text
 from .._diagnosis.effects import EFFECTS
 from ._common import CLIError, add_output_options
 
 NAME = "diagnose"
-HELP = "name the effects a plain PI model misses and show the gap shrink"
 DESCRIPTION = """\
 Fit a plain PI model (16 plays on a threshold grid, positive weights, output offset, relaxed
 initial states) to DATA.csv (columns t, u, y), locate where the residual is structured, then try
@@ -16,7 +16,8 @@ each effect (initial_state, delay, linear_dynamics, rate_dependence, creep, asym
 offset_drift) and name it only when it wins clearly on held-out blocks against the noise floor;
 repeat on what remains. Both the plain and the final model are then refined jointly (weights and
 every effect's parameters) by optimistix least squares (--solver). A progress bar over the
-candidates shows on a terminal (not with --quiet or --json). Writes
+candidates shows on a terminal (not with --quiet or --json). With --json it prints the report
+(the text of report.json) instead of the paths. Writes
   DIR/report.json  effects (in order), baseline_rmse, final_rmse, noise_std_estimate,
                    candidates (first-round held-out scores), parameters (of the named
                    effects), refinement (solver result, steps, RMSE before/after,
@@ -48,7 +49,10 @@ def add_arguments(p):
         help="optimistix solver for the final joint refinement of both models: lm "
         "(Levenberg-Marquardt, default), gn (Gauss-Newton), bfgs, or none to keep the grid fit",
     )
-    p.add_argument("--json", action="store_true", help="print only the path of report.json")
+    p.add_argument(
+        "--json", action="store_true",
+        help="print the report (report.json's text) instead of the paths written",
+    )
     add_output_options(p, "piest-diagnose")
 
 
@@ -78,7 +82,12 @@ def run(args) -> int:
     written = [_io.write_json(out / "report.json", rep)]
     written.append(_io.save_figure(_figure(arrays, rep), out / "report.png", dpi=110))
     written.append(_io.write_text(out / "report.md", _markdown(rep)))
-    print(written[0] if args.json else "\n".join(str(p) for p in written))
+    if args.json:
+        # write_json has refused any non-finite value the command does not allow, so this text
+        # is report.json's.
+        print(json_text(rep, name="report.json"), end="")
+    else:
+        print("\n".join(str(p) for p in written))
     return 0
 
 

@@ -9,7 +9,6 @@ from .._data.record import load_record
 from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
 
 NAME = "estimate"
-HELP = "run an online weight estimator (the paper's RLS, RLS with forgetting, gradient) on a record"
 DESCRIPTION = """\
 Run an online estimator over DATA.csv (columns t, u, y) with a fixed play bank: thresholds from
 --thresholds, from a fitted model (--from-fit fit.json, its thresholds and initial states), or

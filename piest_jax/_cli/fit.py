@@ -8,11 +8,11 @@ import numpy as np
 from . import output as _io
 from .._data.record import load_record
 from .._identification.fit import SOLVERS, fit_pi
+from .._identification.model_file import model_keys
 from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select_plays
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "fit"
-HELP = "fit thresholds, weights and offset of a PI model to a measured (t, u, y) record"
 DESCRIPTION = """\
 Fit y = sum_j w_j H_{r_j}[u] + offset to DATA.csv (header naming t, u, y) by least squares
 through the play scan (Levenberg-Marquardt by default), thresholds included, and write
@@ -157,14 +157,13 @@ def run(args) -> int:
         selection = {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores}
     else:
         f = fit_pi(rec.u, rec.y, args.plays, **opts)
+    # The model's keys (schema, structure, parameters) as `save_model` writes them, so that
+    # `load_model` reads fit.json back.
     report = {
+        **model_keys(f),
         "data": str(args.data),
         "n_samples": rec.n_samples,
         "n_plays": f.n_plays,
-        "thresholds": f.thresholds,
-        "weights": f.weights,
-        "offset": f.offset,
-        "initial_states": f.initial_states,
         "rmse": f.rmse,
         "flagged": f.flagged,
         "solver": {

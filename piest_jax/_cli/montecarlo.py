@@ -11,7 +11,6 @@ from .._excitation.montecarlo import pe_map
 from ._common import CLIError, add_output_options, positive_float, positive_int
 
 NAME = "montecarlo"
-HELP = "map PE levels against Assumption 1 over random inputs, thresholds and initial states"
 DESCRIPTION = """\
 Draw N random cases (input family and parameters, thresholds, initial states, weights), one PRNG
 key each, and for every draw compute the Assumption 1 ratio rho (smallest window range of u over

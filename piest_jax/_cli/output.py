@@ -9,8 +9,6 @@ output folder holds either the previous complete set of results or the new compl
 
 import contextlib
 import contextvars
-import json
-import math
 import os
 import signal
 import tempfile
@@ -20,16 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .._report import NonFiniteError as NonFiniteError
+from .._report import check_finite, figure_options, json_text
+
 # Temporaries are `.NAME.PID.RANDOM.tmp`: hidden, never mistaken for results, and the PID tells a
 # later run whether the writer is gone.
 _TMP_SUFFIX = ".tmp"
 # Debris of a killed writer is removed only after this long, so a slow writer on another machine
 # sharing the folder is never disturbed.
 _DEBRIS_AGE_S = 3600.0
-
-
-class NonFiniteError(ValueError):
-    """A result that should be a number is NaN or infinite."""
 
 
 class OutputTransaction:
@@ -203,53 +200,6 @@ def _atomic_write(path: Path, write) -> Path:
     return path
 
 
-def _where(keys) -> str:
-    text = ""
-    for k in keys:
-        text += f"[{k}]" if isinstance(k, int) else (f".{k}" if text else str(k))
-    return text or "the value"
-
-
-def _jsonable(x, keys=(), bad=None):
-    """`x` as plain JSON types; each non-finite float becomes None and its location goes to `bad`."""
-    bad = [] if bad is None else bad
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v, (*keys, str(k)), bad) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v, (*keys, i), bad) for i, v in enumerate(x)]
-    if hasattr(x, "__array__") and not isinstance(x, (str, bytes)):
-        arr = np.asarray(x)
-        return _jsonable(arr.item() if arr.ndim == 0 else arr.tolist(), keys, bad)
-    if isinstance(x, (np.bool_, bool)):
-        return bool(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        if math.isfinite(x):
-            return x
-        # JSON has no NaN or inf: the value is written as null and flagged, never silently.
-        bad.append((keys, x))
-        return None
-    if isinstance(x, Path):
-        return str(x)
-    return x
-
-
-def _check_finite(name: str, bad, allowed) -> None:
-    """Refuse non-finite values outside the keys where they mean something (`allowed`; None:
-    everywhere, as for library use outside a command)."""
-    if allowed is None:
-        return
-    refused = [(k, v) for k, v in bad if not any(str(c) in allowed for c in k)]
-    if refused:
-        keys, v = refused[0]
-        more = f" (and {len(refused) - 1} more values)" if len(refused) > 1 else ""
-        raise NonFiniteError(
-            f"the result is not finite: {_where(keys)} = {v} in {name}{more}; nothing was written"
-        )
-
-
 def write_json(path, obj) -> Path:
     """Write `obj` as indented, strict JSON, atomically.
 
@@ -264,15 +214,8 @@ def write_json(path, obj) -> Path:
     **Returns:** the path written.
     """
     path = Path(path)
-    bad = []
-    data = _jsonable(obj, (), bad)
     tx = _ACTIVE.get()
-    _check_finite(path.name, bad, None if tx is None else tx.nonfinite)
-    if bad:
-        if not isinstance(data, dict):
-            raise NonFiniteError(f"{path.name}: non-finite values can only be flagged in a JSON object")
-        data["non_finite"] = {_where(k): str(v) for k, v in bad}
-    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
+    text = json_text(obj, name=path.name, allowed=None if tx is None else tx.nonfinite)
     return _atomic_write(path, lambda f: f.write(text.encode()))
 
 
@@ -300,7 +243,7 @@ def write_csv(path, columns: dict) -> Path:
         # The first non-finite value of each column, as (column, row) locations.
         first = [((names[j], int(np.argmax(bad[:, j]))), float(data[np.argmax(bad[:, j]), j]))
                  for j in np.flatnonzero(bad.any(axis=0))]
-        _check_finite(path.name, first, tx.nonfinite)
+        check_finite(path.name, first, tx.nonfinite)
 
     def write(f):
         f.write((",".join(names) + "\n").encode())
@@ -311,16 +254,17 @@ def write_csv(path, columns: dict) -> Path:
 
 def save_figure(fig, path, **kwargs) -> Path:
     """Save a matplotlib figure atomically and close it. **Returns:** the path written."""
-    import matplotlib.pyplot as plt
 
     path = Path(path)
-    fmt = path.suffix.lstrip(".") or "png"
-    # Fixed metadata keeps PNGs byte-identical between runs.
-    kwargs.setdefault("metadata", {"Software": None} if fmt == "png" else {})
+    fmt, kwargs = figure_options(path, kwargs)
     try:
         return _atomic_write(path, lambda f: fig.savefig(f, format=fmt, **kwargs))
     finally:
-        plt.close(fig)
+        # Figures drawn through pyplot stay registered there until closed; others need nothing.
+        if getattr(fig.canvas, "manager", None) is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
 
 
 def _remove_debris(out: Path, names) -> None:

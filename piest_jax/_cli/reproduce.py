@@ -5,7 +5,6 @@ from .._estimation.reproduce import DEFAULT_P0, FIGURES, figure, public_report, 
 from ._common import add_output_options, positive_float
 
 NAME = "reproduce"
-HELP = "reproduce the paper's Figs. 5 and 6 (RLS weight estimation) as figures and JSON"
 DESCRIPTION = f"""\
 Run the paper's continuous-time RLS (eqs. 5-6, integrated exactly in information form) on its two
 simulation settings, thresholds (0, 10/3, 20/3), dt = 1 ms, t in [0, 1] s, W(0) = 0:

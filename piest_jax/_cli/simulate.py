@@ -9,7 +9,6 @@ from .._operators.pi import PIOperator
 from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
 
 NAME = "simulate"
-HELP = "run a PI operator on a sine, multi-sine, triangle, chirp or a CSV's u"
 DESCRIPTION = """\
 Run a Prandtl-Ishlinskii operator y = sum_j w_j H_{r_j}[u] on an input and write
   DIR/simulate.csv   columns t, u, y and the play outputs x_1..x_n

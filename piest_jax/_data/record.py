@@ -12,7 +12,10 @@ _HEADER_SEARCH_LINES = 200
 
 
 class DataError(ValueError):
-    """A data file that cannot be used, with a message naming the file, row and problem."""
+    """A data file or array that cannot be used, with a message naming the file, row and problem.
+
+    **Arguments:** the message (a `ValueError`'s).
+    """
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +52,72 @@ class Record:
     def dt(self) -> float:
         """The sampling interval (the median step of `t`)."""
         return float(np.median(np.diff(self.t)))
+
+    @classmethod
+    def from_arrays(
+        cls,
+        t,
+        u,
+        y,
+        *,
+        extras: dict | None = None,
+        source: str = "<arrays>",
+        min_samples: int = MIN_SAMPLES,
+        dt_tolerance: float = 1e-3,
+        resample: bool = False,
+    ) -> "Record":
+        """A record from arrays, checked as [`load_record`][] checks a file.
+
+        **Arguments:**
+
+        - `t`, `u`, `y`: one-dimensional sequences of equal length (time strictly increasing).
+        - `extras`: further columns by name, each as long as `t`.
+        - `source`: the description that error messages and `Record.source` carry.
+        - `min_samples`, `dt_tolerance`, `resample`: as for [`load_record`][].
+
+        **Returns:** a [`Record`][] of float64 copies. Raises [`DataError`][] naming the problem:
+        a column that is not one-dimensional, not numeric, of another length, NaN or infinite,
+        too few samples, time not strictly increasing, non-uniform sampling.
+        """
+        cols = {}
+        for name, col in [("t", t), ("u", u), ("y", y), *(extras or {}).items()]:
+            arr = np.asarray(col)
+            if arr.ndim != 1:
+                _fail(source, f"column `{name}` must be one-dimensional, got shape {arr.shape}")
+            if np.issubdtype(arr.dtype, np.complexfloating) or not (
+                np.issubdtype(arr.dtype, np.number) or arr.dtype == bool
+            ):
+                _fail(source, f"column `{name}` is not real numbers (dtype {arr.dtype})")
+            cols[name] = np.array(arr, dtype=np.float64)
+        n = len(cols["t"])
+        for name, col in cols.items():
+            if len(col) != n:
+                _fail(source, f"column `{name}` has {len(col)} samples but `t` has {n}")
+        t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
+        opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample)
+        t, u, y, extras = _validate(t, u, y, cols, source, None, **opts)
+        return cls(t, u, y, extras, source)
+
+    @classmethod
+    def from_dataframe(cls, df, *, source: str = "<DataFrame>", **kwargs) -> "Record":
+        """A record from a pandas `DataFrame` with columns `t`, `u`, `y` (any case).
+
+        **Arguments:** `df`, the frame (further numeric columns are kept as `extras`); `source`
+        and `kwargs` as for [`Record.from_arrays`][].
+
+        **Returns:** a [`Record`][]. Raises [`DataError`][] naming missing or duplicated columns
+        or any problem [`Record.from_arrays`][] finds.
+        """
+        names = [str(c).strip().lower() for c in df.columns]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            _fail(source, f"duplicated column name(s): {', '.join(dupes)}")
+        missing = [c for c in ("t", "u", "y") if c not in names]
+        if missing:
+            _fail(source, f"missing column(s) {', '.join(missing)}: the frame has {', '.join(names)}")
+        cols = {n: df[c].to_numpy() for n, c in zip(names, df.columns)}
+        t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
+        return cls.from_arrays(t, u, y, extras=cols, source=source, **kwargs)
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Record":
         """The samples `start:stop` as a new record (time stamps kept)."""
@@ -323,20 +392,35 @@ def _load_npz(path, source, **opts):
     return Record(t, u, y, extras, source)
 
 
-def builtin_datasets() -> list[str]:
-    """The names of the measured data sets shipped with the package (see `piest_jax/data/`)."""
+def datasets() -> list[str]:
+    """The names of the measured data sets shipped with the package (see `piest_jax/data/`).
+
+    **Returns:** the sorted names, e.g. `"piezo_aye2018_identification"`; each one is accepted by
+    [`load_dataset`][] and [`dataset_path`][].
+    """
     root = resources.files("piest_jax") / "data"
-    return sorted(p.name for p in root.iterdir() if p.name.endswith(".csv"))
+    return sorted(p.name[: -len(".csv")] for p in root.iterdir() if p.name.endswith(".csv"))
 
 
-def builtin_path(name: str) -> Path:
-    """The path of a shipped data set, e.g. `"piezo_aye2018_identification.csv"`.
+def dataset_path(name: str) -> Path:
+    """The path of a shipped data set's CSV file.
 
-    **Arguments:** `name`, a file name from [`builtin_datasets`][].
+    **Arguments:** `name`, a name from [`datasets`][] (the file name, with `.csv`, is accepted too).
 
     **Returns:** its `Path`. Raises `ValueError` listing the available names otherwise.
     """
-    names = builtin_datasets()
-    if name not in names:
+    names = datasets()
+    stem = name[: -len(".csv")] if name.endswith(".csv") else name
+    if stem not in names:
         raise ValueError(f"no shipped data set {name!r}; available: {', '.join(names)}")
-    return Path(str(resources.files("piest_jax") / "data" / name))
+    return Path(str(resources.files("piest_jax") / "data" / f"{stem}.csv"))
+
+
+def load_dataset(name: str, **kwargs) -> Record:
+    """Load a shipped data set as a [`Record`][].
+
+    **Arguments:** `name`, a name from [`datasets`][]; `kwargs` go to [`load_record`][].
+
+    **Returns:** the record; its `source` is the file's path.
+    """
+    return load_record(dataset_path(name), **kwargs)

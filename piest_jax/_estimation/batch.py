@@ -330,13 +330,17 @@ def noise_study(
 
 
 def noise_figure(report: dict):
-    """The noise study's figure: bias/spread against σ, and the forgetting-factor trade-off."""
-    import matplotlib
+    """The noise study's figure: bias/spread against σ, and the forgetting-factor trade-off.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    **Arguments:** `report`, from [`noise_study`][].
 
-    fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(14, 4))
+    **Returns:** a `matplotlib.figure.Figure`, made without pyplot (the backend and pyplot's
+    state are left alone).
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(14, 4))
+    a1, a2, a3 = fig.subplots(1, 3)
     nz = report["noise"]
     sig = np.asarray(nz["noise_std"])
     for j in range(3):

@@ -170,16 +170,20 @@ def reproduce(name: str, *, P0: float = DEFAULT_P0, normalisation: str = "paper"
 
 
 def figure(report: dict):
-    """The figure for one report: weight errors over time, and convergence time against P0."""
-    import matplotlib
+    """The figure for one report: weight errors over time, and convergence time against P0.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    **Arguments:** `report`, from [`reproduce`][].
+
+    **Returns:** a `matplotlib.figure.Figure`, made without pyplot: the backend and pyplot's
+    current figure stay as they were (show it with `display(fig)` or save it with `fig.savefig`).
+    """
+    from matplotlib.figure import Figure
 
     arr = report["_arrays"]
     t, w = arr["t"], arr["weights"]
     truth = np.asarray(report["weights_true"])
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig = Figure(figsize=(11, 4))
+    a1, a2 = fig.subplots(1, 2)
     for j in range(w.shape[1]):
         a1.plot(t, truth[j] - w[:, j], lw=1.2, label=f"ω̃{j + 1} (ω{j + 1} = {truth[j]:g})")
     a1.axhline(0, color="k", lw=0.5)

@@ -18,6 +18,7 @@ from jaxtyping import Array
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
 from .fit import PIFit
+from .pi_model import PIModel
 from .._operators.pi import inverse
 from .._operators.pi import PIOperator
 
@@ -59,21 +60,27 @@ def _model(model, offset):
     if isinstance(model, PIFit):
         op = PIOperator(model.thresholds, model.weights, model.initial_states)
         c = model.offset if offset is None else offset
+    elif isinstance(model, PIModel):
+        op = model.operator()
+        c = model.offset if offset is None else offset
     elif isinstance(model, PIOperator):
         op, c = model, 0.0 if offset is None else offset
     else:
-        raise ValueError(f"`model` must be a PIFit or a PIOperator, got {type(model).__name__}")
+        raise ValueError(
+            f"`model` must be a PIFit, PIModel or PIOperator, got {type(model).__name__}"
+        )
     return op, jnp.asarray(c, op.weights.dtype)
 
 
 def feedforward(
-    model: PIFit | PIOperator, desired: SignalLike, *, offset=None, initial_states=None
+    model: PIFit | PIModel | PIOperator, desired: SignalLike, *, offset=None, initial_states=None
 ) -> Signal:
     """The input that makes the model's output follow `desired`: u = P⁻¹[desired - offset].
 
     **Arguments:**
 
-    - `model`: a [`PIFit`][] (its offset is used) or a [`PIOperator`][] (offset 0 unless given).
+    - `model`: a [`PIFit`][] or [`PIModel`][] (its offset is used) or a [`PIOperator`][]
+      (offset 0 unless given).
     - `desired`: the desired output trajectory (T,).
     - `offset`: overrides the model's output offset.
     - `initial_states`: the plant's play states at the start (scalar or (n,)); default the model's,

@@ -1,0 +1,164 @@
+"""Fitted models as JSON files: `save_model`, `load_model`, and one entry per model structure.
+
+A model file is a JSON object with a `"schema"` version and a `"structure"` naming the kind of
+model; the other keys are that structure's parameters. `piest fit` writes its `fit.json` in this
+form (with its diagnostics beside the model's keys), so `load_model("fit.json")` gives the fitted
+model back. Files written before the schema key existed hold a PI model and load as one.
+
+A new model structure registers itself once, at the bottom of this file: its name, the classes
+it writes, and the functions between a model and its keys.
+"""
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from .._data.record import DataError
+from .._operators.pi import PIOperator
+from .._report import write_json
+from .fit import PIFit
+from .pi_model import PIModel
+
+SCHEMA = 1
+
+
+class _Structure(NamedTuple):
+    types: tuple[type, ...]
+    to_keys: Callable[[Any], dict]
+    from_keys: Callable[[dict, str], Any]
+
+
+_STRUCTURES: dict[str, _Structure] = {}
+
+
+def register_structure(name: str, types, to_keys, from_keys) -> None:
+    """Make `save_model` write models of `types` as `"structure": name` and `load_model` read them.
+
+    `to_keys(model)` gives the JSON-ready parameters; `from_keys(keys, source)` builds the model
+    from a file's object and raises [`DataError`][] starting with `source` when a key is wrong.
+    """
+    _STRUCTURES[name] = _Structure(tuple(types), to_keys, from_keys)
+
+
+def model_keys(model) -> dict:
+    """The JSON object [`save_model`][] writes for `model`: schema, structure, parameters.
+
+    **Arguments:** `model`, of a registered structure (a [`PIModel`][], [`PIFit`][] or
+    [`PIOperator`][]).
+
+    **Returns:** a dict, ready for `json.dumps` once arrays become lists. Raises `TypeError`
+    for a model of no registered structure.
+    """
+    for name, s in _STRUCTURES.items():
+        if isinstance(model, s.types):
+            return {"schema": SCHEMA, "structure": name, **s.to_keys(model)}
+    kinds = ", ".join(t.__name__ for s in _STRUCTURES.values() for t in s.types)
+    raise TypeError(f"cannot save a {type(model).__name__}; saved models are {kinds}")
+
+
+def model_from_keys(keys, source: str = "<model>"):
+    """The model a file's JSON object describes (the inverse of [`model_keys`][]).
+
+    **Arguments:** `keys`, the decoded JSON object; `source`, how error messages name it.
+
+    **Returns:** the model (a [`PIModel`][] for `"structure": "pi"`). Raises [`DataError`][]
+    naming `source` and the problem: not an object, a schema newer than this version reads, an
+    unknown structure, or a parameter that is missing, not a number, not finite or of the
+    wrong length.
+    """
+    if not isinstance(keys, dict):
+        raise DataError(f"{source}: expected a JSON object as written by `piest fit`")
+    schema = keys.get("schema", 0)
+    if isinstance(schema, bool) or not isinstance(schema, int) or schema < 0:
+        raise DataError(f"{source}: `schema` must be a non-negative integer, got {schema!r}")
+    if schema > SCHEMA:
+        raise DataError(
+            f"{source}: model file schema {schema} is newer than this piest_jax reads ({SCHEMA}); "
+            "upgrade piest_jax"
+        )
+    name = keys.get("structure", "pi")
+    if name not in _STRUCTURES:
+        raise DataError(
+            f"{source}: unknown model structure {name!r}; this piest_jax reads {', '.join(_STRUCTURES)}"
+        )
+    return _STRUCTURES[name].from_keys(keys, source)
+
+
+def save_model(path, model) -> Path:
+    """Write a model as a JSON model file that [`load_model`][] reads back.
+
+    **Arguments:** `path`, the destination (its folder is created); `model`, a [`PIModel`][],
+    a [`PIFit`][] (its model part) or a [`PIOperator`][] (offset 0).
+
+    **Returns:** the path written. Raises `ValueError` when a parameter is not finite.
+    """
+    keys = model_keys(model)
+    bad = [k for k, v in keys.items() if isinstance(v, np.ndarray) and not np.all(np.isfinite(v))]
+    if bad:
+        raise ValueError(f"cannot save a model with non-finite {', '.join(bad)}")
+    return write_json(path, keys)
+
+
+def load_model(path):
+    """Read a model from a JSON model file: one written by [`save_model`][] or `piest fit`'s
+    `fit.json` (older `fit.json` files without a schema key included).
+
+    **Arguments:** `path`, the file.
+
+    **Returns:** the model, callable on an input: `load_model("fit.json")(u)` is the fitted
+    model's output (a [`PIModel`][] for a PI fit). Raises [`DataError`][] (a `ValueError`)
+    naming the file and the problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    try:
+        keys = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(f"{path}: not a JSON file ({e})") from None
+    return model_from_keys(keys, str(path))
+
+
+# --- the PI model -----------------------------------------------------------------------------
+
+
+def _pi_keys(model) -> dict:
+    if isinstance(model, PIOperator):
+        model = PIModel(model.thresholds, model.weights, 0.0, model.initial_states)
+    return {
+        "thresholds": np.asarray(model.thresholds, np.float64),
+        "weights": np.asarray(model.weights, np.float64),
+        "offset": np.asarray(model.offset, np.float64),
+        "initial_states": np.asarray(model.initial_states, np.float64),
+    }
+
+
+def _pi_from_keys(d: dict, source: str) -> PIModel:
+    missing = [k for k in ("thresholds", "weights") if k not in d]
+    if missing:
+        raise DataError(f"{source}: missing {', '.join(missing)} (is it a `piest fit` fit.json?)")
+    try:
+        r = np.asarray(d["thresholds"], dtype=float)
+        w = np.asarray(d["weights"], dtype=float)
+        c = float(d.get("offset", 0.0))
+        x0 = np.asarray(d.get("initial_states", 0.0), dtype=float)
+    except (TypeError, ValueError) as e:
+        raise DataError(f"{source}: thresholds, weights, offset must be numbers ({e})") from None
+    if r.ndim != 1 or r.shape != w.shape:
+        raise DataError(f"{source}: thresholds {r.shape} and weights {w.shape} must be equal vectors")
+    if r.size == 0:
+        raise DataError(f"{source}: the model has no plays (empty thresholds and weights)")
+    if x0.ndim > 1 or x0.size not in (1, r.size):
+        raise DataError(f"{source}: initial_states has {x0.size} entries for {r.size} plays")
+    if not all(np.all(np.isfinite(a)) for a in (r, w, c, x0)):
+        raise DataError(f"{source}: thresholds, weights, offset and initial_states must be finite")
+    try:
+        return PIModel(r, w, c, x0)
+    except ValueError as e:
+        raise DataError(f"{source}: {e}") from None
+
+
+register_structure("pi", (PIModel, PIFit, PIOperator), _pi_keys, _pi_from_keys)

@@ -1,0 +1,122 @@
+"""Model files: `save_model`/`load_model` round trips, `piest fit`'s fit.json read back, and every
+rejection with its message."""
+
+import json
+
+import numpy as np
+import pytest
+
+import piest_jax as pj
+from piest_jax._identification.model_file import SCHEMA, model_keys
+
+R, W, C, X0 = [0.0, 0.4, 1.1], [1.0, 0.6, 0.3], 0.25, [0.1, -0.2, 0.0]
+
+
+def _record(tmp_path, n=600, noise=0.0):
+    t = np.arange(n) * 0.005
+    u = 2.0 * np.sin(2 * np.pi * 0.7 * t) * (1 + 0.4 * np.sin(2 * np.pi * 0.13 * t))
+    y = np.asarray(pj.PIModel(R, W, C, 0.0)(u))
+    y = y + noise * np.random.default_rng(0).standard_normal(n)
+    path = tmp_path / "rec.csv"
+    np.savetxt(path, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    return path
+
+
+def test_pi_model_round_trip(tmp_path):
+    m = pj.PIModel(R, W, C, X0)
+    path = pj.save_model(tmp_path / "sub" / "m.json", m)
+    keys = json.loads(path.read_text())
+    assert keys["schema"] == SCHEMA and keys["structure"] == "pi"
+    back = pj.load_model(path)
+    assert isinstance(back, pj.PIModel)
+    for name in ("thresholds", "weights", "offset", "initial_states"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(m, name))
+    u = 1.5 * np.sin(np.linspace(0, 12, 300))
+    np.testing.assert_array_equal(back(u), m(u))
+
+
+def test_operator_saves_with_zero_offset(tmp_path):
+    op = pj.PIOperator(R, W, X0)
+    back = pj.load_model(pj.save_model(tmp_path / "op.json", op))
+    u = np.sin(np.linspace(0, 9, 200))
+    np.testing.assert_array_equal(back(u), op(u))
+    assert float(back.offset) == 0.0
+
+
+def test_fit_saves_its_model_and_the_feedforward_agrees(tmp_path):
+    import jax
+
+    path = _record(tmp_path, noise=1e-3)
+    rec = pj.load_record(path)
+    fit = pj.fit_pi(rec.u, rec.y, 3, key=jax.random.key(0))
+    back = pj.load_model(pj.save_model(tmp_path / "f.json", fit))
+    np.testing.assert_array_equal(back(rec.u), fit(rec.u))
+    yd = 0.8 * np.asarray(fit(rec.u))
+    np.testing.assert_array_equal(pj.feedforward(back, yd), pj.feedforward(fit, yd))
+
+
+def test_cli_fit_json_loads_and_reproduces_its_rmse(tmp_path, capsys):
+    path = _record(tmp_path, noise=2e-3)
+    out = tmp_path / "fitted"
+    assert pj.run_cli(["fit", str(path), "--plays", "3", "--out", str(out), "--quiet"]) == 0
+    report = json.loads((out / "fit.json").read_text())
+    assert report["schema"] == SCHEMA and report["structure"] == "pi"
+    model = pj.load_model(out / "fit.json")
+    rec = pj.load_record(path)
+    rmse = float(np.sqrt(np.mean((np.asarray(model(rec.u)) - rec.y) ** 2)))
+    np.testing.assert_allclose(rmse, report["rmse"], rtol=1e-9)
+    assert 1e-3 < rmse < 4e-3  # the noise, not a model that misses the data
+
+    # `piest compensate` reads the same file: its feedforward equals the library's.
+    t = rec.t[:200]
+    desired = 0.5 * np.sin(2 * np.pi * 0.5 * t)
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, desired]), delimiter=",",
+               header="t,desired", comments="")
+    ff = tmp_path / "ff"
+    assert pj.run_cli(["compensate", str(out / "fit.json"), str(tmp_path / "d.csv"),
+                       "--out", str(ff), "--quiet"]) == 0
+    cols = np.loadtxt(ff / "compensate.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(cols[:, 2], np.asarray(pj.feedforward(model, desired)), rtol=0,
+                               atol=1e-12)
+
+
+def test_files_without_a_schema_are_pi_models(tmp_path):
+    # fit.json as `piest fit` wrote it before model files had a schema.
+    old = {"data": "d.csv", "n_plays": 3, "thresholds": R, "weights": W, "offset": C,
+           "initial_states": X0, "rmse": 0.01}
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    m = pj.load_model(tmp_path / "old.json")
+    np.testing.assert_array_equal(m.thresholds, R)
+    assert float(m.offset) == C
+    assert model_keys(m)["structure"] == "pi"
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("{oops", r"not a JSON file"),
+        ("[1]", r"expected a JSON object as written by `piest fit`"),
+        ({"schema": SCHEMA + 1, "structure": "pi"}, rf"model file schema {SCHEMA + 1} is newer"),
+        ({"schema": "1", "thresholds": R, "weights": W}, r"`schema` must be a non-negative integer"),
+        ({"schema": 1, "structure": "neural", "thresholds": R}, r"unknown model structure 'neural'; this piest_jax reads pi"),
+        ({"schema": 1, "structure": "pi", "weights": W}, r"missing thresholds"),
+        ({"thresholds": R, "weights": W[:2]}, r"must be equal vectors"),
+        ({"thresholds": R, "weights": [1.0, None, 2.0]}, r"must be finite"),
+        ({"thresholds": [0.0, 0.5, 0.5], "weights": W}, r"`thresholds` must be strictly increasing"),
+    ],
+)
+def test_bad_model_files_are_refused_naming_the_file(tmp_path, content, message):
+    path = tmp_path / "m.json"
+    path.write_text(content if isinstance(content, str) else json.dumps(content))
+    with pytest.raises(pj.DataError, match=f"^{path}: .*{message}" if not message.startswith("^") else message):
+        pj.load_model(path)
+
+
+def test_missing_file_and_unsaveable_models(tmp_path):
+    with pytest.raises(pj.DataError, match=r"nope\.json: no such file"):
+        pj.load_model(tmp_path / "nope.json")
+    with pytest.raises(TypeError, match=r"cannot save a str; saved models are PIModel, PIFit, PIOperator"):
+        pj.save_model(tmp_path / "x.json", "model")
+    with pytest.raises(ValueError, match=r"cannot save a model with non-finite offset"):
+        pj.save_model(tmp_path / "x.json", pj.PIModel(R, W, np.nan))
+    assert not (tmp_path / "x.json").exists()

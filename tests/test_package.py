@@ -1,0 +1,144 @@
+"""Package manners: lazy imports, the version, `python -m piest_jax`, optional extras, and figure
+helpers that leave matplotlib's backend and pyplot alone."""
+
+import subprocess
+import sys
+from importlib import metadata
+
+import numpy as np
+
+import piest_jax as pj
+
+
+def _python(code: str, *args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_import_loads_neither_jax_nor_the_diagnosis_stack():
+    code = """
+import sys
+import piest_jax as pj
+print(sorted(m for m in ("jax", "scipy", "matplotlib", "tqdm") if m in sys.modules))
+pj.fit_pi, pj.PIOperator, pj.load_record
+print(sorted(m for m in ("jax", "scipy", "matplotlib") if m in sys.modules))
+pj.diagnose
+print(sorted(m for m in ("scipy", "matplotlib") if m in sys.modules))
+"""
+    proc = _python(code)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split("\n")[:3] == ["[]", "['jax']", "['scipy']"]
+
+
+def test_help_and_version_do_not_load_jax():
+    code = """
+import contextlib, io, sys
+from piest_jax._cli import main
+for argv in (["--help"], ["--version"], ["nope"]):
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        try:
+            main(argv)
+        except SystemExit:
+            pass
+print("jax" in sys.modules)
+"""
+    proc = _python(code)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "False"
+
+
+def test_version_comes_from_the_package_metadata():
+    version = metadata.version("piest_jax")
+    assert pj.__version__ == version
+    for cmd in (["piest", "--version"], [sys.executable, "-m", "piest_jax", "--version"]):
+        if cmd[0] == "piest":
+            cmd[0] = str(__import__("pathlib").Path(sys.executable).with_name("piest"))
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0 and proc.stdout.strip() == f"piest {version}", proc
+
+
+def test_module_runs_the_command_line(tmp_path):
+    args = ["simulate", "--input", "triangle", "--thresholds", "0,1", "--weights", "1,0.5",
+            "--duration", "0.2", "--quiet"]
+    a = subprocess.run([sys.executable, "-m", "piest_jax", *args, "--out", str(tmp_path / "a")],
+                       capture_output=True, text=True, timeout=300)
+    assert a.returncode == 0, a.stderr
+    assert pj.run_cli([*args, "--out", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "a" / "simulate.csv").read_bytes() == (tmp_path / "b" / "simulate.csv").read_bytes()
+
+
+def test_commands_without_matplotlib_say_which_extra_to_install(tmp_path):
+    code = """
+import sys
+sys.modules["matplotlib"] = None  # as if it were not installed
+from piest_jax._cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+    out = tmp_path / "o"
+    proc = _python(code, "simulate", "--out", str(out))
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "piest simulate: error: matplotlib is needed to draw the figures; install the command "
+        "line's extras with pip install 'piest_jax[cli]'"
+    ]
+    assert not out.exists()
+
+
+def test_progress_without_tqdm_yields_the_items():
+    code = """
+import sys
+sys.modules["tqdm"] = None
+from piest_jax._progress import progress
+print(list(progress(range(4), desc="x")))
+"""
+    proc = _python(code)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[0, 1, 2, 3]"
+
+
+def _fake_report():
+    t = np.linspace(0, 1, 50)
+    w = np.outer(1 - np.exp(-20 * t), [1.0, 3.0, 5.0])
+    p0 = [1e4, 1e6, 1e8]
+    return {
+        "_arrays": {"t": t, "weights": w, "bound": np.exp(-t)},
+        "weights_true": [1.0, 3.0, 5.0], "figure": "fig5", "input": "u", "P0": 1e8,
+        "sweep": {"P0": p0, "time_to_1pct": {"paper": [None, 0.1, 0.03], "standard": [0.2, 0.05, 0.03]}},
+        "time_input_exceeds_r_max": 0.02,
+    }
+
+
+def test_figure_helpers_leave_the_backend_and_pyplot_alone(tmp_path):
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    backend, figures = matplotlib.get_backend(), plt.get_fignums()
+    fig = pj.paper.figure(_fake_report())
+    assert isinstance(fig, matplotlib.figure.Figure) and len(fig.axes) >= 2
+    assert matplotlib.get_backend() == backend and plt.get_fignums() == figures
+    a = pj.save_figure(fig, tmp_path / "a.png", dpi=50)
+    b = pj.save_figure(fig, tmp_path / "b.png", dpi=50)
+    assert a.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and a.read_bytes() == b.read_bytes()
+    assert plt.get_fignums() == figures
+
+
+def test_library_write_json_reads_as_the_cli_writes(tmp_path):
+    from piest_jax._cli import output
+
+    obj = {"a": np.arange(3.0), "b": np.float32(0.5), "c": float("inf"), "p": tmp_path}
+    lib = pj.write_json(tmp_path / "lib.json", obj)
+    cli = output.write_json(tmp_path / "cli.json", obj)
+    assert lib.read_text() == cli.read_text()
+    assert '"non_finite": {\n    "c": "inf"\n  }' in lib.read_text()
+
+
+def test_readme_notebooks_and_experiments_use_only_the_public_api():
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    files = [root / "README.md", *(root / "notebooks").rglob("*.py"), *(root / "notebooks").glob("*.ipynb"),
+             *(root / "experiments").rglob("*.py")]
+    private = [f"{p.relative_to(root)}:{i}" for p in files
+               for i, line in enumerate(p.read_text().splitlines(), 1) if re.search(r"piest_jax\._", line)]
+    assert len(files) > 15 and private == []
