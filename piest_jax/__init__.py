@@ -39,6 +39,9 @@ _EXPORTS = {
     "convergence_certificate": ("._estimation.certificate", "convergence_certificate"),
     "information_form": ("._estimation.certificate", "information_form"),
     "noise_covariance": ("._estimation.certificate", "noise_covariance"),
+    "OnlineEstimate": ("._estimation.online", "OnlineEstimate"),
+    "estimate_record": ("._estimation.online", "estimate_record"),
+    "settled_start": ("._estimation.online", "settled_start"),
     # excitation, input signals and the Monte Carlo map
     "time_grid": ("._excitation.signals", "time_grid"),
     "sine": ("._excitation.signals", "sine"),
@@ -144,6 +147,9 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._estimation.estimators import Estimation as Estimation
     from ._estimation.estimators import estimate as estimate
     from ._estimation.gradient import NormalisedGradient as NormalisedGradient
+    from ._estimation.online import OnlineEstimate as OnlineEstimate
+    from ._estimation.online import estimate_record as estimate_record
+    from ._estimation.online import settled_start as settled_start
     from ._estimation.rls import ContinuousRLS as ContinuousRLS
     from ._estimation.rls import ForgettingRLS as ForgettingRLS
     from ._excitation.condition import sharper_condition as sharper_condition

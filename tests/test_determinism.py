@@ -155,6 +155,13 @@ def test_compensate_twice(record, tmp_path, capsys):
     _assert_identical(*_twice(tmp_path, capsys, ["compensate", str(model), str(record)]))
 
 
+def test_estimate_twice(record, tmp_path, capsys):
+    a, b = _twice(tmp_path, capsys, ["estimate", str(record), "--plays", "4", "--start", "0"])
+    _assert_identical(a, b)
+    rep = json.loads((a / "estimate.json").read_text())
+    assert len(rep["weights_final"]) == 4 and rep["start_sample"] == 0
+
+
 def test_montecarlo_twice(tmp_path, capsys):
     argv = ["montecarlo", "--inputs", "6", "--samples", "300", "--plays", "3", "--chunk", "3", "--seed", "11"]
     a, b = _twice(tmp_path, capsys, argv)

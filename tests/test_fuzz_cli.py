@@ -31,6 +31,7 @@ from piest_jax._cli import fit as fit_cmd
 from piest_jax._cli import montecarlo as montecarlo_cmd
 from piest_jax._cli import reproduce as reproduce_cmd
 from piest_jax._cli import simulate as simulate_cmd
+from piest_jax._estimation import online as _online
 
 import reference as ref
 
@@ -49,6 +50,7 @@ DATA_ARGV = {
     "fit": lambda f, model: [f, "--plays", "2"],
     "diagnose": lambda f, model: [f],
     "compensate": lambda f, model: [model, f],
+    "estimate": lambda f, model: [f],
 }
 NO_DATA = ["montecarlo", "reproduce"]
 DATA_COMMANDS = list(DATA_ARGV)
@@ -369,6 +371,7 @@ _STUBS = {
     "compensate": [(compensate_cmd, "feedforward")],
     "montecarlo": [(montecarlo_cmd, "pe_map")],
     "reproduce": [(reproduce_cmd, "reproduce")],
+    "estimate": [(_online, "estimate_record")],
 }
 
 _JUNK = ["nan", "inf", "-inf", "-1", "0", "1e308", "1e-320", "", "abc", "1,,2", "3", "0,1", "--", "2.5"]

@@ -13,7 +13,7 @@ import pytest
 
 import piest_jax as pj
 from piest_jax._cli import main
-from piest_jax._estimation.online import estimate_record, settled_start
+from piest_jax import estimate_record, settled_start
 
 R = np.array([0.0, 0.4, 0.9, 1.5])
 W = np.array([1.0, 0.6, 0.4, 0.3])
