@@ -1,0 +1,104 @@
+"""Fitting PI + creep jointly, comparing with estimated initial conditions, choosing the structure."""
+
+import jax
+import numpy as np
+import pytest
+
+import piest_jax as pj
+from test_creep import reference_lags
+from test_fit import reference_pi
+
+R, W = np.array([0.0, 0.5, 1.2]), np.array([1.0, 0.6, 0.4])
+TAU, C = np.array([0.4]), np.array([0.5])
+DT, T = 0.01, 800
+
+
+def plant(u, x0=None, z0=None, offset=0.3):
+    x0 = u[0] if x0 is None else x0
+    z0 = u[0] if z0 is None else z0
+    return reference_pi(u, R, W, x0) + reference_lags(u, TAU, DT, z0) @ C + offset
+
+
+def signal(T=T, phase=0.0):
+    t = DT * np.arange(T)
+    # Sine stretches with holds between them: creep shows while the input rests.
+    s = np.sin(2 * np.pi * 0.5 * t + phase) * (1 - 0.05 * t)
+    hold = (np.floor(t / 2.0) % 2) == 1
+    u = 1.0 + 2.5 * s
+    for i in np.flatnonzero(hold):
+        u[i] = u[i - 1]
+    return u
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    u = signal()
+    return u, plant(u), pj.fit_pi(u, plant(u), 3, n_lags=1, dt=DT, key=jax.random.key(0))
+
+
+def test_recovers_creep(fitted):
+    u, y, f = fitted
+    assert f.n_lags == 1 and f.model().structure == "pi+creep"
+    np.testing.assert_allclose(f.creep.time_constants, TAU, rtol=1e-3)
+    np.testing.assert_allclose(f.creep.weights, C, rtol=1e-3)
+    np.testing.assert_allclose(f.thresholds, R, atol=1e-3)
+    np.testing.assert_allclose(f.weights, W, rtol=1e-3)
+    assert float(f.rmse) < 1e-4 * np.ptp(y)
+    np.testing.assert_allclose(f(u), y, atol=1e-3)
+    np.testing.assert_allclose(f.model()(u), f(u), rtol=1e-12)
+
+
+def test_plain_pi_cannot_explain_creep(fitted):
+    u, y, f = fitted
+    g = pj.fit_pi(u, y, 3, key=jax.random.key(0))
+    assert float(g.rmse) > 20 * float(f.rmse)
+
+
+def test_compare_estimates_initial_conditions(fitted):
+    # Another run of the same plant: other input, a different sensor zero, the plays and lags
+    # left elsewhere by the unrecorded past. The raw prediction misses; with estimated initial
+    # conditions only the admissible part of the states that matters is left.
+    _, _, f = fitted
+    u = signal(600, phase=1.0)
+    x0 = pj.admissible_states(R, u[0] + np.array([0.0, 0.3, -0.5]))
+    y = plant(u, x0=np.asarray(x0), z0=u[0] - 0.8, offset=1.0)
+    raw = pj.compare(f.model().with_initial_states(u[0]), u, y, estimate_initial=False)
+    ic = pj.compare(f.model().with_initial_states(u[0]), u, y)
+    assert float(raw.rmse) > 0.1
+    assert float(ic.rmse) < 1e-3 * np.ptp(y)
+    assert float(ic.fit_percent) > 99.9
+    assert abs(float(ic.model.offset) - (1.0 + (float(f.offset) - 0.3))) < 1e-2
+    # The estimated play states are admissible.
+    r, x = np.asarray(f.thresholds), np.asarray(ic.model.pi.initial_states)
+    assert np.all(np.abs(np.diff(x)) <= np.diff(r) * (1 + 1e-12))
+    # The fit percentage is the sysid formula.
+    e = np.asarray(ic.prediction) - y
+    np.testing.assert_allclose(ic.fit_percent, 100 * (1 - np.linalg.norm(e) / np.linalg.norm(y - y.mean())))
+
+
+def test_select_model_finds_creep_when_present():
+    u = signal()
+    y = plant(u) + 1e-3 * np.random.default_rng(3).standard_normal(T)
+    ch = pj.select_model(u, y, DT, plays=(2, 3, 4), lags=(0, 1, 2), key=jax.random.key(0))
+    assert ch.structure == "pi+creep" and ch.n_lags >= 1
+    scores = dict(zip(ch.candidates, ch.scores))
+    assert scores[(ch.n_plays, ch.n_lags)] < 0.5 * scores[(ch.n_plays, 0)]
+
+
+def test_select_model_keeps_plain_pi_without_creep():
+    u = signal()
+    y = reference_pi(u, R, W, u[0]) + 0.3 + 1e-3 * np.random.default_rng(4).standard_normal(T)
+    ch = pj.select_model(u, y, DT, plays=(2, 3, 4), lags=(0, 1, 2), key=jax.random.key(0))
+    assert ch.structure == "pi" and ch.n_lags == 0 and ch.fit.creep is None
+
+
+def test_bad_lag_arguments():
+    u = signal(200)
+    with pytest.raises(ValueError, match="time_constants0. must be positive and finite"):
+        pj.fit_pi(u, plant(u[:200]), 2, n_lags=1, dt=DT, time_constants0=[-1.0])
+    with pytest.raises(ValueError, match="`n_lags` must be a whole number"):
+        pj.fit_pi(u, plant(u), 2, n_lags=-1, dt=DT)
+    with pytest.raises(ValueError, match="`dt` must be a positive finite number"):
+        pj.fit_pi(u, plant(u), 2, n_lags=1, dt=0.0)
+    with pytest.raises(ValueError, match="need .* parameters"):
+        pj.fit_pi(u[:8], plant(u[:8]), 2, n_lags=2, dt=DT)
