@@ -8,15 +8,20 @@ import numpy as np
 from . import output as _io
 from .._identification.compensate import admissible_states, feedforward
 from .._data.record import load_columns
+from .._models.composite import HysteresisModel
+from .._models.creep import Creep
 from .._operators.pi import PIOperator
 from ._common import CLIError, add_output_options
 
 NAME = "compensate"
-HELP = "compute the feedforward input that makes a fitted PI model follow a desired output"
+HELP = "compute the feedforward input that makes a fitted model follow a desired output"
 DESCRIPTION = """\
 Invert the model in MODEL.json (as written by `piest fit`: thresholds, weights, offset,
-initial_states) analytically and compute u = P^-1[desired - offset] for the desired output in
-DESIRED.csv (a header naming `t` and the column given by --column, default `desired`, else `y`).
+initial_states, and creep when the fit has one) and compute u = P^-1[desired - offset] for the
+desired output in DESIRED.csv; with creep, sample by sample u = Q^-1[desired - offset - the
+lags' memory of the past input], Q the PI with the lags' share of the present input folded into
+its first weight (the exact inverse of PI + creep; DESIRED.csv must then be sampled at the
+model's dt) (a header naming `t` and the column given by --column, default `desired`, else `y`).
 Writes
   DIR/compensate.csv    columns t, desired, u (the feedforward input) and model (the model's
                         output for u, equal to desired up to rounding)
@@ -77,6 +82,22 @@ def load_model(path):
     return r, w, c, x0
 
 
+def load_creep(path):
+    """The creep of a `piest fit` JSON file as a `Creep`, or None when it has none."""
+    d = json.loads(Path(path).read_text())
+    cr = d.get("creep")
+    if cr is None:
+        return None
+    if not isinstance(cr, dict) or not {"time_constants", "weights", "dt"} <= set(cr):
+        raise CLIError(f"{path}: creep must hold time_constants, weights and dt")
+    try:
+        z0 = cr.get("initial_states")
+        return Creep(np.asarray(cr["time_constants"], float), np.asarray(cr["weights"], float),
+                     float(cr["dt"]), None if z0 is None else np.asarray(z0, float))
+    except (TypeError, ValueError) as e:
+        raise CLIError(f"{path}: unusable creep ({' '.join(str(e).split())})") from None
+
+
 def load_desired(path, column):
     """Time and desired output from a CSV with a header row (read by `load_columns`, so errors
     name the file, row and problem)."""
@@ -91,17 +112,28 @@ def load_desired(path, column):
 def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     r, w, c, x0 = load_model(args.model)
+    creep = load_creep(args.model)
     t, yd, col = load_desired(args.desired, args.column)
+    if creep is not None and len(t) > 1:
+        dt = float(np.median(np.diff(t)))
+        if not np.isclose(dt, creep.dt, rtol=1e-3):
+            raise CLIError(f"{args.desired}: sampled every {dt:g}, but the model's creep was "
+                           f"identified at dt = {creep.dt:g}; resample the desired output")
     if args.initial_states is not None:
         x0 = np.full(r.shape, args.initial_states)
     try:
         x0 = np.asarray(admissible_states(r, x0))
         op = PIOperator(r, w, x0)
-        u = np.asarray(feedforward(op, yd, offset=c))
+        model = op if creep is None else HysteresisModel(op, creep, c)
+        u = np.asarray(feedforward(model, yd, offset=c))
     except ValueError as e:
         # The desired output was checked on reading: what is left is the model (not invertible).
-        raise CLIError(f"{args.model}: {e}") from None
+        raise CLIError(f"{args.model}: {' '.join(str(e).split())}") from None
     ym = np.asarray(op(u)) + c
+    if creep is not None:
+        # The model's own run: its lags at rest at the first input, as the feedforward assumed
+        # unless the file states their states.
+        ym = np.asarray(model(u))
     written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
     summary = {
         "model": str(args.model),

@@ -436,7 +436,7 @@ def fit_pi(
     k_all = n_lags if pad_lags is None else int(pad_lags)
     if k_all > 0:
         used = np.flatnonzero(np.asarray(mask[:T]) > 0)
-        if time_constants0 is None:
+        if time_constants0 is None or n_lags == 0:
             tau0 = initial_time_constants(n_lags, 1.0, float(used[-1] - used[0] + 1))
         else:
             tau0 = np.asarray(check_time_constants(time_constants0, "time_constants0"), float)
