@@ -141,3 +141,86 @@ def test_creep_compensation_beats_pi_only(fitted):
     without = pj.evaluate_compensation(run, pi_only.model().with_initial_states(1.0), yd)
     assert float(with_creep.rmse_compensated) < 0.01 * float(without.rmse_compensated)
     assert float(without.rmse_compensated) < float(without.rmse_linear)
+
+
+def write_record(path, u, y, dt=DT):
+    t = np.arange(len(u)) * dt
+    np.savetxt(path, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+
+
+def test_cli_fit_and_compensate_with_creep(tmp_path, capsys):
+    import json
+
+    from piest_jax._cli import main
+
+    u = signal()
+    write_record(tmp_path / "d.csv", u, plant(u))
+    uv = signal(600, phase=1.0)
+    write_record(tmp_path / "v.csv", uv, plant(uv, offset=0.8))
+    out = tmp_path / "out"
+    rc = main(["fit", str(tmp_path / "d.csv"), "--model", "pi+creep", "--plays", "3", "--lags",
+               "1", "--validate", str(tmp_path / "v.csv"), "--out", str(out), "--quiet"])
+    assert rc == 0
+    capsys.readouterr()
+    rep = json.loads((out / "fit.json").read_text())
+    assert rep["model"] == {"structure": "pi+creep", "n_plays": 3, "n_lags": 1}
+    np.testing.assert_allclose(rep["creep"]["time_constants"], TAU, rtol=1e-3)
+    np.testing.assert_allclose(rep["creep"]["weights"], C, rtol=1e-3)
+    assert rep["creep"]["initial_states"] is None and rep["creep"]["dt"] == pytest.approx(DT)
+    for key in ("thresholds", "weights", "offset", "initial_states", "rmse", "flagged", "solver"):
+        assert key in rep
+    # The validation run has another sensor zero (+0.5): raw misses by it, the estimated
+    # offset takes it out.
+    assert rep["validation_rmse"] == pytest.approx(0.5, rel=1e-2)
+    assert rep["validation_rmse_ic"] < 1e-3
+    assert rep["validation_fit_percent"] > 99.9
+    # piest compensate reads the creep and inverts PI + creep.
+    t = DT * np.arange(300)
+    yd = plant(u)[0] + 1.5 * np.sin(2 * np.pi * 0.4 * t) ** 2
+    np.savetxt(tmp_path / "yd.csv", np.column_stack([t, yd]), delimiter=",", header="t,desired",
+               comments="")
+    rc = main(["compensate", str(out / "fit.json"), str(tmp_path / "yd.csv"), "--out",
+               str(tmp_path / "ff"), "--quiet"])
+    assert rc == 0
+    data = np.loadtxt(tmp_path / "ff" / "compensate.csv", delimiter=",", skiprows=1)
+    x0 = np.asarray(pj.admissible_states(rep["thresholds"], rep["initial_states"]))
+    ref = (reference_pi(data[:, 2], np.asarray(rep["thresholds"]), np.asarray(rep["weights"]), x0)
+           + reference_lags(data[:, 2], rep["creep"]["time_constants"], DT, data[0, 2])
+           @ np.asarray(rep["creep"]["weights"]) + rep["offset"])
+    np.testing.assert_allclose(ref, yd, atol=1e-8)
+    np.testing.assert_allclose(data[:, 3], yd, atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--time-constants", "-1"], "is not positive"),
+        (["--time-constants", "0.001"], "shorter than the sampling interval"),
+        (["--time-constants", "1e6"], "over 100 times the record's duration"),
+        (["--model", "pi", "--time-constants", "1"], "needs --model pi+creep"),
+        (["--criterion", "bic"], "use it with --model pi"),
+    ],
+)
+def test_cli_fit_refuses_bad_creep(tmp_path, capsys, extra, message):
+    from piest_jax._cli import main
+
+    u = signal(200)
+    write_record(tmp_path / "d.csv", u, plant(u))
+    out = tmp_path / "out"
+    assert main(["fit", str(tmp_path / "d.csv"), *extra, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_cli_fit_refuses_unknown_model(tmp_path, capsys):
+    from piest_jax._cli import main
+
+    u = signal(200)
+    write_record(tmp_path / "d.csv", u, plant(u))
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", str(tmp_path / "d.csv"), "--model", "creep-pi", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "invalid choice: 'creep-pi'" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()

@@ -99,6 +99,8 @@ def select_model(
     shared = T <= SHARED_UP_TO
     pad = dict(pad_plays=max(plays), pad_lags=max(lags)) if shared else {}
     yn = np.asarray(y)
+    # Scores closer than this are rounding, not a gain (a noise-free record fits to ~1e-12).
+    floor = 1e-8 * float(np.std(yn[used > 0]))
     scores: dict = {}
     bar = progress(None, desc="models", quiet=quiet)
 
@@ -121,14 +123,14 @@ def select_model(
         for v in values:
             s = score(*make(v))
             tried.append((v, s))
-            if s < best * (1 - tolerance):
+            if s < best * (1 - tolerance) - floor:
                 best, since = s, 0
             else:
                 since += 1
                 if since >= wait:
                     break
         best = min(s for _, s in tried)
-        return next(v for v, s in tried if s <= best * (1 + tolerance))
+        return next(v for v, s in tried if s <= best * (1 + tolerance) + floor)
 
     k_base = lags[0]
     n = search(plays, patience, lambda v: (v, k_base))
