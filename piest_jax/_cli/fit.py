@@ -202,14 +202,21 @@ def run(args) -> int:
     if args.plays == "auto" or len(lag_choices) > 1:
         used = used * holdout_mask(rec.n_samples, HOLDOUT)
     n_fit = int(used.sum())
-    cands = [c for c in plays if per_play * (c + max(lag_choices)) + 1 <= n_fit]
-    if not cands:
-        raise CLIError(
-            f"{args.data}: {n_used} samples{'' if mask is None else ' from --fit-from on'} "
-            "are too few to fit "
-            f"{','.join(map(str, plays))} plays (each needs {per_play}n + 1 fitted samples, "
-            "and a creep lag as many as a play)"
-        )
+    if args.plays == "auto":
+        cands = [c for c in plays if per_play * (c + max(lag_choices)) + 1 <= n_fit]
+        if not cands:
+            raise CLIError(
+                f"{args.data}: {n_used} samples{'' if mask is None else ' from --fit-from on'} "
+                "are too few to choose among --candidates "
+                f"{','.join(map(str, args.candidates))} (each needs {per_play}n + 1 fitted "
+                "samples, and a creep lag as many as a play)"
+            )
+    else:
+        cands = plays
+        # Lag counts the held-out part cannot carry are not tried; with none left the single
+        # fit below names the shortage.
+        fits = [k for k in lag_choices if per_play * (args.plays + k) + 1 <= n_fit]
+        lag_choices = fits or lag_choices[:1]
     if args.model == "pi" and args.plays == "auto":
         opts.pop("time_constants0", None)
         sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, quiet=args.quiet, **opts)

@@ -47,6 +47,7 @@ class ModelChoice:
 
     @property
     def structure(self) -> str:
+        """`"pi"` or `"pi+creep"`."""
         return "pi" if self.n_lags == 0 else "pi+creep"
 
 
