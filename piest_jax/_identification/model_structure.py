@@ -100,8 +100,10 @@ def select_model(
     shared = T <= SHARED_UP_TO
     pad = dict(pad_plays=max(plays), pad_lags=max(lags)) if shared else {}
     yn = np.asarray(y)
-    # Scores closer than this are rounding, not a gain (a noise-free record fits to ~1e-12).
-    floor = 1e-8 * float(np.std(yn[used > 0]))
+    # Scores closer than this are rounding, not a gain (a noise-free record fits to ~1e-12 of
+    # its spread; a flat one to ~1e-16 of its level).
+    fitted = yn[used > 0]
+    floor = 1e-8 * max(float(np.std(fitted)), 1e-6 * float(np.max(np.abs(fitted))), 1e-300)
     scores: dict = {}
     bar = progress(None, desc="models", quiet=quiet)
 
