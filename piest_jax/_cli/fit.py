@@ -36,8 +36,9 @@ play count, each kept only if it predicts the held-out block better; --model pi 
 starting time constants in the record's time unit). --plays auto (the default) picks the number
 of plays among --candidates, trying them from the smallest up and stopping after two in a row
 that do not improve the score (--criterion bic only with --model pi; a progress bar shows on a
-terminal unless --quiet). The validation record never takes part in choosing or fitting. --fit-from T leaves the samples before time T (a start-up transient, a rest)
-out of the fit and of its RMSE; they still drive the plays. Weights are kept positive (so the
+terminal unless --quiet). The validation record never takes part in choosing or fitting.
+--fit-from T leaves the samples before time T (a start-up transient, a rest) out of the fit
+and of its RMSE; they still drive the plays. Weights are kept positive (so the
 model can be inverted by `piest compensate`) unless --signed-weights.
 
 On the Aye & Ang piezo pair (identify on one run, predict the other), the default picks 8 plays
