@@ -166,7 +166,8 @@ def test_cli_fit_and_compensate_with_creep(tmp_path, capsys):
     assert rep["model"] == {"structure": "pi+creep", "n_plays": 3, "n_lags": 1}
     np.testing.assert_allclose(rep["creep"]["time_constants"], TAU, rtol=1e-3)
     np.testing.assert_allclose(rep["creep"]["weights"], C, rtol=1e-3)
-    assert rep["creep"]["initial_states"] is None and rep["creep"]["dt"] == pytest.approx(DT)
+    assert rep["creep"]["starts_at_rest"] and "initial_states" not in rep["creep"]
+    assert rep["creep"]["dt"] == pytest.approx(DT)
     for key in ("thresholds", "weights", "offset", "initial_states", "rmse", "flagged", "solver"):
         assert key in rep
     # The validation run has another sensor zero (+0.5): raw misses by it, the estimated

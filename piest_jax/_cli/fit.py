@@ -20,7 +20,8 @@ Fit y = sum_j w_j H_{r_j}[u] + sum_k c_k z_k[u] + offset to DATA.csv (header nam
 by least squares through the play scan (Levenberg-Marquardt by default), thresholds included;
 z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. Writes
   DIR/fit.json         model (structure, n_plays, n_lags), thresholds, weights, offset,
-                       initial_states, creep (time_constants, weights, initial_states, dt),
+                       initial_states, creep (time_constants, weights, dt, starts_at_rest,
+                       initial_states when fitted; absent for plain PI),
                        rmse (over the fitted samples), the solver's result, plays flagged as not
                        excited, the selection's candidates and scores, and with --validate:
                        validation_rmse (raw: the model run on VAL.csv from rest),
@@ -257,14 +258,17 @@ def run(args) -> int:
         },
         "input_half_range": 0.5 * float(np.ptp(rec.u)),
         "n_fitted_samples": n_used,
-        "creep": None if f.creep is None else {
+    }
+    if f.creep is not None:
+        report["creep"] = {
             "time_constants": f.creep.time_constants,
             "weights": f.creep.weights,
-            # None: each lag starts at rest at the record's first input.
-            "initial_states": f.creep.initial_states,
             "dt": f.creep.dt,
-        },
-    }
+            # At rest: each lag starts at the first input of whatever record the model runs on.
+            "starts_at_rest": f.creep.initial_states is None,
+        }
+        if f.creep.initial_states is not None:
+            report["creep"]["initial_states"] = f.creep.initial_states
     if args.fit_from is not None:
         report["fit_from"] = args.fit_from
     if selection:
