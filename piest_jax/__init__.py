@@ -82,6 +82,14 @@ _EXPORTS = {
     "feedforward": ("._identification.compensate", "feedforward"),
     "linear_feedforward": ("._identification.compensate", "linear_feedforward"),
     "PIModel": ("._identification.pi_model", "PIModel"),
+    "Comparison": ("._identification.compare", "Comparison"),
+    "compare": ("._identification.compare", "compare"),
+    "initial_time_constants": ("._identification.fit", "initial_time_constants"),
+    "ModelChoice": ("._identification.model_structure", "ModelChoice"),
+    "select_model": ("._identification.model_structure", "select_model"),
+    # model components
+    "Creep": ("._models.creep", "Creep"),
+    "HysteresisModel": ("._models.composite", "HysteresisModel"),
     "save_model": ("._identification.model_file", "save_model"),
     "load_model": ("._identification.model_file", "load_model"),
     # diagnosis
@@ -191,6 +199,13 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.model_file import save_model as save_model
     from ._identification.model_size import ModelSize as ModelSize
     from ._identification.pi_model import PIModel as PIModel
+    from ._identification.compare import Comparison as Comparison
+    from ._identification.compare import compare as compare
+    from ._identification.fit import initial_time_constants as initial_time_constants
+    from ._identification.model_structure import ModelChoice as ModelChoice
+    from ._identification.model_structure import select_model as select_model
+    from ._models.composite import HysteresisModel as HysteresisModel
+    from ._models.creep import Creep as Creep
     from ._identification.model_size import select_plays as select_plays
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator

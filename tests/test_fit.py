@@ -101,7 +101,8 @@ def test_objective_gradient_matches_finite_differences():
         "offset": jnp.asarray(0.1),
         "initial_states": jnp.asarray([0.05, 0.0, -0.05]),
     }
-    args = (jnp.asarray(un), jnp.asarray(yn), jnp.zeros(3), jnp.ones(200), True, None, None)
+    args = (jnp.asarray(un), jnp.asarray(yn), jnp.zeros(3), jnp.ones(200), True, None, None, None,
+            None)
 
     @jax.jit
     def loss(p):

@@ -5,14 +5,18 @@ import numpy as np
 from . import output as _io
 from .._identification.compensate import admissible_states, feedforward
 from .._data.record import load_columns
+from .._models.composite import HysteresisModel
 from .._operators.pi import PIOperator
 from ._common import CLIError, add_output_options
 
 NAME = "compensate"
 DESCRIPTION = """\
 Invert the model in MODEL.json (as written by `piest fit`: thresholds, weights, offset,
-initial_states) analytically and compute u = P^-1[desired - offset] for the desired output in
-DESIRED.csv (a header naming `t` and the column given by --column, default `desired`, else `y`).
+initial_states, and creep when the fit has one) and compute u = P^-1[desired - offset] for the
+desired output in DESIRED.csv; with creep, sample by sample u = Q^-1[desired - offset - the
+lags' memory of the past input], Q the PI with the lags' share of the present input folded into
+its first weight (the exact inverse of PI + creep; DESIRED.csv must then be sampled at the
+model's dt) (a header naming `t` and the column given by --column, default `desired`, else `y`).
 Writes
   DIR/compensate.csv    columns t, desired, u (the feedforward input) and model (the model's
                         output for u, equal to desired up to rounding)
@@ -42,16 +46,19 @@ def add_arguments(p):
 
 
 def load_model(path):
-    """Thresholds, weights, offset and initial states from a model file (`piest fit`'s fit.json),
-    read by the library's `load_model`, so errors name the file and the problem."""
+    """Thresholds, weights, offset, initial states and creep (or None) of a model file (`piest
+    fit`'s fit.json), read by the library's `load_model`, so errors name the file and the problem."""
     from .._identification.model_file import load_model as read_model
     from .._identification.pi_model import PIModel
 
     model = read_model(path)
-    if not isinstance(model, PIModel):
-        raise CLIError(f"{path}: a {type(model).__name__} has no closed-form inverse")
-    return tuple(np.asarray(a) for a in (model.thresholds, model.weights, model.offset,
-                                         model.initial_states))
+    if isinstance(model, HysteresisModel):
+        op, creep, c = model.pi, model.creep, model.offset
+    elif isinstance(model, PIModel):
+        op, creep, c = model.operator(), None, model.offset
+    else:
+        raise CLIError(f"{path}: a {type(model).__name__} has no inverse here")
+    return (*(np.asarray(a) for a in (op.thresholds, op.weights, c, op.initial_states)), creep)
 
 
 def load_desired(path, column):
@@ -67,18 +74,28 @@ def load_desired(path, column):
 
 def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    r, w, c, x0 = load_model(args.model)
+    r, w, c, x0, creep = load_model(args.model)
     t, yd, col = load_desired(args.desired, args.column)
+    if creep is not None and len(t) > 1:
+        dt = float(np.median(np.diff(t)))
+        if not np.isclose(dt, creep.dt, rtol=1e-3):
+            raise CLIError(f"{args.desired}: sampled every {dt:g}, but the model's creep was "
+                           f"identified at dt = {creep.dt:g}; resample the desired output")
     if args.initial_states is not None:
         x0 = np.full(r.shape, args.initial_states)
     try:
         x0 = np.asarray(admissible_states(r, x0))
         op = PIOperator(r, w, x0)
-        u = np.asarray(feedforward(op, yd, offset=c))
+        model = op if creep is None else HysteresisModel(op, creep, c)
+        u = np.asarray(feedforward(model, yd, offset=c))
     except ValueError as e:
         # The desired output was checked on reading: what is left is the model (not invertible).
-        raise CLIError(f"{args.model}: {e}") from None
+        raise CLIError(f"{args.model}: {' '.join(str(e).split())}") from None
     ym = np.asarray(op(u)) + c
+    if creep is not None:
+        # The model's own run: its lags at rest at the first input, as the feedforward assumed
+        # unless the file states their states.
+        ym = np.asarray(model(u))
     written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
     summary = {
         "model": str(args.model),

@@ -5,6 +5,14 @@ makes the model follow a desired output y_d is u = P⁻¹[y_d - c], with P⁻¹ 
 ([`inverse`][]). Applied to the real plant, whatever the model misses (error in the thresholds or
 weights, effects outside the PI class) stays as tracking error; what the model captures is removed.
 
+With creep (a [`HysteresisModel`][] or a fit with lags), y[t] = P[u](t) + Σ_k c_k z_k[t] + c and
+z_k[t] = a_k z_k[t-1] + (1 - a_k) u[t]. The lags' part that depends on the present input,
+Σ c_k (1 - a_k) u[t], is the identity play's (r_1 = 0) times a constant, so it folds into the
+first weight: Q = P with w_1 + Σ c_k (1 - a_k). What remains, Σ c_k a_k z_k[t-1], is known from the
+past input. So sample by sample u[t] = Q⁻¹[y_d - c - Σ c_k a_k z_k[t-1]](t), the inverse's plays
+and the lags advancing in one scan: the exact inverse of PI + creep (inverse PI after the creep
+compensator). It exists when Q's cumulative weights are all positive.
+
 The comparison without compensation is the best linear feedforward: the straight line
 u = (y_d - b)/a, where y ≈ a u + b is the least-squares line through the model's own (u, y_d) pairs,
 i.e. what an engineer who ignores hysteresis but knows the gain and offset would apply.
@@ -13,14 +21,19 @@ i.e. what an engineer who ignores hysteresis but knows the gain and offset would
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 from jaxtyping import Array
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
 from .fit import PIFit
 from .pi_model import PIModel
+from .._models.composite import HysteresisModel
+from .._models.creep import lag_step
+from .._operators.inverse import inverse_parameters
 from .._operators.pi import inverse
 from .._operators.pi import PIOperator
+from .._operators.play import play_step
 
 
 def admissible_states(thresholds, states) -> Array:
@@ -57,8 +70,11 @@ def _check_range(c, desired) -> None:
 
 
 def _model(model, offset):
+    creep = None
     if isinstance(model, PIFit):
-        op = PIOperator(model.thresholds, model.weights, model.initial_states)
+        model = model.model()
+    if isinstance(model, HysteresisModel):
+        op, creep = model.pi, model.creep
         c = model.offset if offset is None else offset
     elif isinstance(model, PIModel):
         op = model.operator()
@@ -67,34 +83,70 @@ def _model(model, offset):
         op, c = model, 0.0 if offset is None else offset
     else:
         raise ValueError(
-            f"`model` must be a PIFit, PIModel or PIOperator, got {type(model).__name__}"
+            f"`model` must be a PIFit, PIModel, HysteresisModel or PIOperator, got {type(model).__name__}"
         )
-    return op, jnp.asarray(c, op.weights.dtype)
+    return op, jnp.asarray(c, op.weights.dtype), creep
+
+
+def _creep_inverse(op: PIOperator, creep, v, creep_states=None):
+    """The input u with op[u] + creep[u] = v (offset already removed), sample by sample."""
+    a = creep.decays.astype(v.dtype)
+    cw = creep.weights.astype(v.dtype)
+    if float(op.thresholds[0]) != 0:
+        raise ValueError("the model is not invertible: r_1 must be 0 (the first play the identity)")
+    # The present input's share of the lags joins the identity play's weight.
+    w = op.weights.at[0].add(jnp.sum(cw * (1.0 - a)))
+    ri, wi, xi = inverse_parameters(op.thresholds, w, op.initial_states)
+    z0 = creep_states
+    if z0 is None:
+        z0 = creep.initial_states
+    if z0 is None:
+        # At rest at the first input u_0 (as the forward model starts): then op[u](0) + Σ c u_0 =
+        # v[0], so u_0 is the first sample of the inverse with the lags' whole weight folded in.
+        r0, w0, x0 = inverse_parameters(op.thresholds, op.weights.at[0].add(jnp.sum(cw)),
+                                        op.initial_states)
+        z0 = jnp.broadcast_to(jnp.dot(w0, play_step(x0, v[0], r0)), a.shape)
+
+    def step(carry, vt):
+        x, z = carry
+        x = play_step(x, vt - jnp.dot(cw * a, z), ri)
+        ut = jnp.dot(wi, x)
+        return (x, lag_step(z, ut, a)), ut
+
+    _, u = lax.scan(step, (xi, jnp.broadcast_to(jnp.asarray(z0, v.dtype), a.shape)), v)
+    return u
 
 
 def feedforward(
-    model: PIFit | PIModel | PIOperator, desired: SignalLike, *, offset=None, initial_states=None
+    model: PIFit | PIModel | HysteresisModel | PIOperator, desired: SignalLike, *, offset=None,
+    initial_states=None, creep_states=None,
 ) -> Signal:
-    """The input that makes the model's output follow `desired`: u = P⁻¹[desired - offset].
+    """The input that makes the model's output follow `desired`: u = P⁻¹[desired - offset], or
+    with creep the sample-by-sample inverse of PI + creep described above.
 
     **Arguments:**
 
-    - `model`: a [`PIFit`][] or [`PIModel`][] (its offset is used) or a [`PIOperator`][]
-      (offset 0 unless given).
+    - `model`: a [`PIFit`][], [`PIModel`][] or [`HysteresisModel`][] (its offset, and creep when
+      it has one, are used) or a [`PIOperator`][] (offset 0 unless given).
     - `desired`: the desired output trajectory (T,).
     - `offset`: overrides the model's output offset.
     - `initial_states`: the plant's play states at the start (scalar or (n,)); default the model's,
       made admissible with [`admissible_states`][].
+    - `creep_states`: the lags' states at the start (scalar or (K,)); default the model's, or at
+      rest at the input that the plays' states give for the first target.
 
     **Returns:** the feedforward input (T,). Raises `ValueError` when the model is not invertible
-    (r_1 != 0 or a cumulative weight <= 0; fit with `positive_weights=True` to avoid it).
+    (r_1 != 0 or a cumulative weight <= 0, the creep's share of the first weight included; fit
+    with `positive_weights=True` to keep the plays' part invertible).
     """
-    op, c = _model(model, offset)
+    op, c, creep = _model(model, offset)
     yd = _checks.finite(_checks.signal(desired, "desired"), "desired")
     x0 = op.initial_states if initial_states is None else initial_states
     x0 = admissible_states(op.thresholds, x0)
     op = PIOperator(op.thresholds, op.weights, x0, method=op.method)
     _check_range(c, yd)
+    if creep is not None:
+        return _creep_inverse(op, creep, yd - c, creep_states)
     return inverse(op)(yd - c)
 
 

@@ -40,6 +40,8 @@ from .._custom_types import Scalar, Signal, SignalLike, States, Thresholds, Weig
 from .fit_data import prepare as _prepare
 from .._operators.pi import PIOperator
 from .._operators.play import play_step
+from .._models.composite import HysteresisModel
+from .._models.creep import Creep, check_time_constants, decays, lag_states, lag_step
 
 Solver = Literal["lm", "gn", "bfgs"]
 SOLVERS = ("lm", "gn", "bfgs")
@@ -56,6 +58,8 @@ class PIFit(eqx.Module):
     - `result`: the optimistix result code of the chosen start (`optx.RESULTS`).
     - `flagged` (n,) bool: plays not excited by the input (threshold >= half its peak-to-peak range).
     - `n_steps`: solver steps of the chosen start; `start_rmse` (starts,): every start's final RMSE.
+    - `creep`: the fitted [`Creep`][] (time constants, weights, the lags' initial states), or
+      None for a plain PI model.
     """
 
     thresholds: Thresholds
@@ -67,6 +71,7 @@ class PIFit(eqx.Module):
     flagged: Bool[Array, " plays"]
     n_steps: Array
     start_rmse: Float[Array, " starts"]
+    creep: Creep | None = None
 
     @property
     def n_plays(self) -> int:
@@ -78,18 +83,30 @@ class PIFit(eqx.Module):
         """The solver result as a name such as `"successful"` or `"max_steps_reached"`."""
         return result_name(self.result)
 
+    @property
+    def n_lags(self) -> int:
+        """The number of creep lags (0 for a plain PI model)."""
+        return 0 if self.creep is None else self.creep.n_lags
+
     def operator(self) -> PIOperator:
-        """The fitted operator without the offset, as a [`PIOperator`][]."""
+        """The fitted PI operator without the offset and creep, as a [`PIOperator`][]."""
         return PIOperator(self.thresholds, self.weights, self.initial_states)
 
+    def model(self) -> HysteresisModel:
+        """The fitted model PI + creep + offset as a [`HysteresisModel`][]."""
+        dt = None if self.creep is None else self.creep.dt
+        return HysteresisModel(self.operator(), self.creep, self.offset, dt)
+
     def __call__(self, u: SignalLike, initial_states=None) -> Signal:
-        """The model output operator(u) + offset for an input `u` (T,).
+        """The model output operator(u) + creep(u) + offset for an input `u` (T,).
 
         The plays start from `initial_states` (scalar or (n,)), by default the fitted ones; a new
-        record usually needs its own (e.g. 0 for a device relaxed at zero input).
+        record usually needs its own (e.g. 0 for a device relaxed at zero input). The creep's
+        lags start from their fitted states, or at rest at u_0 when those were not fitted.
         """
         x0 = self.initial_states if initial_states is None else initial_states
-        return PIOperator(self.thresholds, self.weights, x0)(u) + self.offset
+        y = PIOperator(self.thresholds, self.weights, x0)(u) + self.offset
+        return y if self.creep is None else y + self.creep(u)
 
 
 def result_name(result) -> str:
@@ -136,34 +153,60 @@ def _constrained(params, positive_weights, r_bound=None, active=None):
     return r, w
 
 
-def _predict(params, u, x0, positive_weights, r_bound=None, active=None):
-    """Normalised model output; x0 is used unless the parameters carry fitted initial states."""
+def _lag_weights(params, lag_active=None):
+    c = params["lag_weights"]
+    return c if lag_active is None else c * lag_active
+
+
+def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None,
+             lag_active=None):
+    """Normalised model output; x0 (and the lags' z0) are used unless the parameters carry fitted
+    initial states. Time is in samples here (dt = 1)."""
     r, w = _constrained(params, positive_weights, r_bound, active)
     x0 = params.get("initial_states", x0)
+    if "lag_log_tau" not in params:
 
-    def step(x, ut):
-        x = play_step(x, ut, r)
-        return x, jnp.dot(w, x)
+        def step(x, ut):
+            x = play_step(x, ut, r)
+            return x, jnp.dot(w, x)
 
-    _, y = lax.scan(step, x0, u)
+        _, y = lax.scan(step, x0, u)
+        return y + params["offset"]
+    a = decays(params["lag_log_tau"], 1.0)
+    c = _lag_weights(params, lag_active)
+
+    # Plays and lags advance in one scan: on a CPU the per-sample overhead of a scan, not the
+    # arithmetic, dominates, so a second scan would double the cost.
+    def step_both(carry, ut):
+        x, z = carry
+        x, z = play_step(x, ut, r), lag_step(z, ut, a)
+        return (x, z), jnp.dot(w, x) + jnp.dot(c, z)
+
+    _, y = lax.scan(step_both, (x0, params.get("lag_states", z0)), u)
     return y + params["offset"]
 
 
 def _residuals(params, args):
     """Masked residuals scaled so that their sum of squares is the mean squared error."""
-    u, y, x0, mask, positive_weights, r_bound, active = args
+    u, y, x0, mask, positive_weights, r_bound, active, z0, lag_active = args
     count = jnp.maximum(jnp.sum(mask), 1.0)
-    res = mask * (_predict(params, u, x0, positive_weights, r_bound, active) - y) / jnp.sqrt(count)
-    if active is None:
-        return res
-    # The inactive plays' parameters do not reach the data residuals; one residual each, zero
+    pred = _predict(params, u, x0, positive_weights, r_bound, active, z0, lag_active)
+    res = mask * (pred - y) / jnp.sqrt(count)
+    extra = []
+    # Inactive (padding) parameters do not reach the data residuals; one residual each, zero
     # where they start, keeps the Jacobian's columns independent (Gauss-Newton needs that) and
     # leaves them where they are.
-    off = 1.0 - active
-    extra = [off[1:] * params["increments"], off * params["weights"]]
-    if "initial_states" in params:
-        extra.append(off * (params["initial_states"] - x0))
-    return jnp.concatenate([res, *extra])
+    if active is not None:
+        off = 1.0 - active
+        extra += [off[1:] * params["increments"], off * params["weights"]]
+        if "initial_states" in params:
+            extra.append(off * (params["initial_states"] - x0))
+    if lag_active is not None:
+        off = 1.0 - lag_active
+        extra += [off * params["lag_log_tau"], off * params["lag_weights"]]
+        if "lag_states" in params:
+            extra.append(off * (params["lag_states"] - z0))
+    return jnp.concatenate([res, *extra]) if extra else res
 
 
 def _solver(name: str, rtol: float, atol: float):
@@ -191,7 +234,7 @@ def _grid(n, n_starts, dtype, key):
 
 
 def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_bound=None,
-                    active=None):
+                    active=None, z0=None, log_tau0=None, lag_active=None):
     n = r0.shape[0]
     # With padded arrays, n counts the active plays only (a traced number); the padding's
     # regressor columns are zero, so least squares gives them no weight.
@@ -204,9 +247,15 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
         return x, x
 
     _, Hm = lax.scan(step, x0, u)
-    A = jnp.concatenate([Hm * on, jnp.ones_like(u)[:, None]], axis=1) * mask[:, None]
+    cols = [Hm * on]
+    if log_tau0 is not None:
+        # The lags at their starting time constants are regressors too: their weights start at
+        # the joint least-squares solution.
+        k_on = jnp.ones_like(log_tau0) if lag_active is None else lag_active
+        cols.append(lag_states(u, decays(log_tau0, 1.0), z0) * k_on)
+    A = jnp.concatenate([*cols, jnp.ones_like(u)[:, None]], axis=1) * mask[:, None]
     sol = jnp.linalg.lstsq(A, y * mask)[0]
-    w, c = sol[:n], sol[n]
+    w, c = sol[:n], sol[-1]
     if positive_weights:
         w = _softplus_inv(jnp.maximum(w, 1e-2 / n_on))
     if r_bound is None:
@@ -222,16 +271,26 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
     params = {"increments": inc, "weights": w, "offset": c}
     if fit_initial_states:
         params["initial_states"] = x0
+    if log_tau0 is not None:
+        cw = sol[n:-1]
+        log_tau = log_tau0
+        if lag_active is not None:
+            cw, log_tau = cw * lag_active, log_tau * lag_active
+        params["lag_log_tau"] = log_tau
+        params["lag_weights"] = cw
+        if fit_initial_states:
+            params["lag_states"] = z0
     return params
 
 
 @eqx.filter_jit
 def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
-                  fit_initial_states, max_steps, rtol, atol, batch=None, active=None):
-    def one(r0, un, yn, x0, mask, r_bound, active):
-        args = (un, yn, x0, mask, positive_weights, r_bound, active)
+                  fit_initial_states, max_steps, rtol, atol, batch=None, active=None, z0=None,
+                  log_tau0s=None, lag_active=None):
+    def one(r0, log_tau0, un, yn, x0, mask, r_bound, active, z0, lag_active):
+        args = (un, yn, x0, mask, positive_weights, r_bound, active, z0, lag_active)
         p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound,
-                             active)
+                             active, z0, log_tau0, lag_active)
         sol = optx.least_squares(_residuals, _solver(solver, rtol, atol), p0, args=args,
                                  max_steps=max_steps, throw=False)
         res = _residuals(sol.value, args)
@@ -243,17 +302,33 @@ def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
     # solver's implicit derivative under `vmap` fails when its arguments are shared (unbatched)
     # across the starts, while batched copies transpose cleanly. The copies cost starts x T.
     n = r0s.shape[0]
-    data = (un, yn, x0, mask, r_bound, active)
+    data = (un, yn, x0, mask, r_bound, active, z0, lag_active)
     data = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), data)
 
     def fn(xs):
         return one(*xs)
 
     if batch is None or batch >= n:
-        return jax.vmap(fn)((r0s, *data))
+        return jax.vmap(fn)((r0s, log_tau0s, *data))
     # `batch` starts at a time under vmap, the batches one after another: memory grows with
     # batch x T rather than starts x T.
-    return lax.map(fn, (r0s, *data), batch_size=batch)
+    return lax.map(fn, (r0s, log_tau0s, *data), batch_size=batch)
+
+
+def initial_time_constants(n_lags: int, dt: float, duration: float):
+    """Starting time constants for `n_lags` creep lags, log-spaced across the record.
+
+    The range runs from 10 samples (faster lags act as an instantaneous gain, which the plays
+    already hold) to the record's duration (slower ones look like an offset); the lags sit at the
+    centres of `n_lags` equal bins of log τ over it.
+
+    **Arguments:** `n_lags`; `dt`, the sampling interval; `duration`, the fitted stretch's length.
+
+    **Returns:** (n_lags,) time constants in the units of `dt`.
+    """
+    lo = 10.0 * dt
+    hi = max(duration, 10.0 * lo)
+    return lo * (hi / lo) ** ((np.arange(n_lags) + 0.5) / max(n_lags, 1))
 
 
 def fit_pi(
@@ -275,8 +350,13 @@ def fit_pi(
     atol: float = 1e-9,
     starts_at_once: int | None = None,
     pad_plays: int | None = None,
+    n_lags: int = 0,
+    dt: float = 1.0,
+    time_constants0=None,
+    pad_lags: int | None = None,
 ) -> PIFit:
-    """Fit thresholds, weights and an output offset (optionally initial states) to one record.
+    """Fit thresholds, weights and an output offset (optionally initial states, optionally a creep
+    of `n_lags` first-order lags) to one record, all parameters jointly.
 
     **Arguments:**
 
@@ -305,6 +385,15 @@ def fit_pi(
       [`select_plays`][] does on short records); the result is the same fit up to rounding (a
       BFGS fit stopped by `max_steps` far from its optimum can amplify that rounding), at the cost
       of `pad_plays` plays' work per step. Not with `thresholds0`.
+    - `n_lags`: creep lags K (a [`Creep`][] of K first-order lags of u, time constants and weights
+      fitted with everything else; 2K more parameters, 3K with `fit_initial_states`). The creep
+      weights are free in sign (measured creep can relax either way); the lags start at rest at
+      u_0 unless `fit_initial_states`.
+    - `dt`: the sampling interval, the time unit of the creep's time constants.
+    - `time_constants0`: (K,) starting time constants (default [`initial_time_constants`][]
+      over the fitted stretch); the starts after the first scale them by random factors in
+      [1/2, 2] when `key` is given.
+    - `pad_lags`: as `pad_plays`, for the lags (at least `n_lags`).
 
     **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
     non-finite data, an input with zero range, or more parameters than fitted samples.
@@ -317,9 +406,13 @@ def fit_pi(
         not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1
     ):
         raise ValueError(f"`starts_at_once` must be a positive whole number, got {starts_at_once}")
+    per_lag = 3 if fit_initial_states else 2
+    _check_lags(n_lags, pad_lags, dt)
     un, yn, mask, s, x0, r_start = _prepare(
-        u, y, n_plays, mask, thresholds0, initial_states, 3 if fit_initial_states else 2
+        u, y, n_plays, mask, thresholds0, initial_states, 3 if fit_initial_states else 2,
+        extra=per_lag * n_lags,
     )
+    T = jnp.shape(u)[0]
     if r_start is None:
         r0s = _grid(n_plays, n_starts, un.dtype, key)
     else:
@@ -332,12 +425,34 @@ def fit_pi(
             )
         if r_start is not None:
             raise ValueError("`pad_plays` and `thresholds0` cannot be combined")
-    if pad_plays is not None and pad_plays > n_plays:
+    if pad_plays is not None:
+        # Even with no padding the mask is made, so that every padded fit has one structure.
         extra = int(pad_plays) - n_plays
         # The padding repeats the top start threshold and state; the plays are inactive anyway.
         r0s = jnp.concatenate([r0s, jnp.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
         x0 = jnp.concatenate([x0, jnp.repeat(x0[-1:], extra)])
         active = (jnp.arange(int(pad_plays)) < n_plays).astype(un.dtype)
+    z0 = log_tau0s = lag_active = None
+    k_all = n_lags if pad_lags is None else int(pad_lags)
+    if k_all > 0:
+        used = np.flatnonzero(np.asarray(mask[:T]) > 0)
+        if time_constants0 is None or n_lags == 0:
+            tau0 = initial_time_constants(n_lags, 1.0, float(used[-1] - used[0] + 1))
+        else:
+            tau0 = np.asarray(check_time_constants(time_constants0, "time_constants0"), float)
+            if tau0.shape != (n_lags,):
+                raise ValueError(f"`time_constants0` has {tau0.size} entries for {n_lags} lags")
+            tau0 = tau0 / dt
+        tau0 = np.concatenate([tau0, np.full(k_all - n_lags, 1.0)])
+        log_tau0s = jnp.broadcast_to(jnp.log(jnp.asarray(tau0, un.dtype)), (r0s.shape[0], k_all))
+        if key is not None and r0s.shape[0] > 1:
+            jitter = jax.random.uniform(jax.random.fold_in(key, 1), log_tau0s.shape, un.dtype,
+                                        -np.log(2.0), np.log(2.0))
+            log_tau0s = log_tau0s.at[1:].add(jitter[1:])
+        z0 = jnp.full(k_all, (jnp.asarray(u, un.dtype)[0] - s.u_mid) / s.u_half, un.dtype)
+        if pad_lags is not None:
+            lag_active = (jnp.arange(k_all) < n_lags).astype(un.dtype)
+            log_tau0s = log_tau0s * lag_active
     r_bound = None
     if max_threshold is not None:
         if not float(max_threshold) > 0:
@@ -350,7 +465,8 @@ def fit_pi(
     params, loss, results, steps = _solve_starts(
         r0s, un, yn, x0, mask, r_bound, solver=solver, positive_weights=positive_weights,
         fit_initial_states=fit_initial_states, max_steps=max_steps, rtol=rtol, atol=atol,
-        batch=min(int(starts_at_once), r0s.shape[0]), active=active,
+        batch=min(int(starts_at_once), r0s.shape[0]), active=active, z0=z0,
+        log_tau0s=log_tau0s, lag_active=lag_active,
     )
     best = int(jnp.argmin(loss))
     if not bool(jnp.isfinite(loss[best])):
@@ -362,8 +478,17 @@ def fit_pi(
     thresholds = r * s.u_half
     weights = w * s.y_half / s.u_half
     states = s.u_mid + s.u_half * xn
-    # y = y_mid + y_half (Σ w' x' + c'), x' = (x - u_mid)/u_half
+    # y = y_mid + y_half (Σ w' x' + Σ c' z' + c'), x' = (x - u_mid)/u_half, z' likewise
     offset = s.y_mid + s.y_half * p["offset"] - s.u_mid * jnp.sum(weights)
+    creep = None
+    if n_lags > 0:
+        cw = (_lag_weights(p)[:n_lags]) * s.y_half / s.u_half
+        offset = offset - s.u_mid * jnp.sum(cw)
+        tau = jnp.exp(p["lag_log_tau"][:n_lags]) * dt
+        zs = None
+        if fit_initial_states:
+            zs = s.u_mid + s.u_half * p["lag_states"][:n_lags]
+        creep = Creep(tau, cw, dt, zs)
     return PIFit(
         thresholds=thresholds,
         weights=weights,
@@ -374,7 +499,19 @@ def fit_pi(
         flagged=thresholds >= s.u_half,
         n_steps=steps[best],
         start_rmse=jnp.sqrt(loss) * s.y_half,
+        creep=creep,
     )
+
+
+def _check_lags(n_lags, pad_lags, dt) -> None:
+    if not isinstance(n_lags, (int, np.integer)) or n_lags < 0:
+        raise ValueError(f"`n_lags` must be a whole number >= 0, got {n_lags!r}")
+    if pad_lags is not None and (not isinstance(pad_lags, (int, np.integer)) or pad_lags < n_lags):
+        raise ValueError(
+            f"`pad_lags` must be a whole number of at least n_lags={n_lags}, got {pad_lags!r}"
+        )
+    if not (isinstance(dt, (int, float, np.integer, np.floating)) and np.isfinite(dt) and dt > 0):
+        raise ValueError(f"`dt` must be a positive finite number, got {dt!r}")
 
 
 def uniform_pi(
@@ -391,7 +528,7 @@ def uniform_pi(
     un, yn, mask, s, x0, _ = _prepare(u, y, n_plays, mask, None, initial_states)
     r0 = jnp.arange(n_plays, dtype=un.dtype) / n_plays
     p = _initial_params(r0, un, yn, x0, mask, False, False)
-    loss = jnp.sum(_residuals(p, (un, yn, x0, mask, False, None, None)) ** 2)
+    loss = jnp.sum(_residuals(p, (un, yn, x0, mask, False, None, None, None, None)) ** 2)
     weights = p["weights"] * s.y_half / s.u_half
     return PIFit(
         thresholds=r0 * s.u_half,

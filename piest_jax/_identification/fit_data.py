@@ -26,13 +26,13 @@ def pad_count(T: int) -> int:
     return -T % max(512, 2 ** max(int(np.ceil(np.log2(T))) - 3, 0))
 
 
-def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2):
+def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2, extra=0):
     """Check, normalise and pad one record for fitting.
 
     **Arguments:** `u`, `y` (T,); `n_plays`; `mask` (T,) of the samples fitted, or None for all;
     `thresholds0`, starting thresholds in the data's units or None; `initial_states`, the plays'
-    states before sample 0 or None (relaxed at u_0); `per_play`, parameters per play, for the
-    check that there are enough samples.
+    states before sample 0 or None (relaxed at u_0); `per_play`, parameters per play, and
+    `extra`, further parameters (a creep's), for the check that there are enough samples.
 
     **Returns:** `(un, yn, mask, scales, x0, thresholds0)` in normalised units, padded.
     """
@@ -48,9 +48,10 @@ def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2):
     if mask.shape != u.shape:
         raise ValueError(f"`mask` has shape {mask.shape}, expected {u.shape}")
     n_fit = int(np.sum(np.asarray(mask) > 0))
-    if per_play * n_plays + 1 > n_fit:
+    if per_play * n_plays + 1 + extra > n_fit:
+        what = f"{n_plays} plays" + (" and the creep" if extra else "")
         raise ValueError(
-            f"{n_plays} plays need {per_play * n_plays + 1} parameters but only {n_fit} samples "
+            f"{what} need {per_play * n_plays + 1 + extra} parameters but only {n_fit} samples "
             "are fitted; use fewer plays or a longer record"
         )
     un, yn = np.asarray(u), np.asarray(y)

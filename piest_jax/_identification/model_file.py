@@ -19,6 +19,8 @@ import numpy as np
 from .._data.record import DataError
 from .._operators.pi import PIOperator
 from .._report import write_json
+from .._models.composite import HysteresisModel
+from .._models.creep import Creep
 from .fit import PIFit
 from .pi_model import PIModel
 
@@ -52,6 +54,12 @@ def model_keys(model) -> dict:
     **Returns:** a dict, ready for `json.dumps` once arrays become lists. Raises `TypeError`
     for a model of no registered structure.
     """
+    if isinstance(model, PIFit):
+        model = model.model()
+    # A composite model names its own structure (PI alone or PI + creep); others by their class.
+    named = getattr(model, "structure", None)
+    if isinstance(named, str) and named in _STRUCTURES and isinstance(model, _STRUCTURES[named].types):
+        return {"schema": SCHEMA, "structure": named, **_STRUCTURES[named].to_keys(model)}
     for name, s in _STRUCTURES.items():
         if isinstance(model, s.types):
             return {"schema": SCHEMA, "structure": name, **s.to_keys(model)}
@@ -128,6 +136,8 @@ def load_model(path):
 def _pi_keys(model) -> dict:
     if isinstance(model, PIOperator):
         model = PIModel(model.thresholds, model.weights, 0.0, model.initial_states)
+    if isinstance(model, HysteresisModel):
+        model = PIModel(model.pi.thresholds, model.pi.weights, model.offset, model.pi.initial_states)
     return {
         "thresholds": np.asarray(model.thresholds, np.float64),
         "weights": np.asarray(model.weights, np.float64),
@@ -161,4 +171,38 @@ def _pi_from_keys(d: dict, source: str) -> PIModel:
         raise DataError(f"{source}: {e}") from None
 
 
-register_structure("pi", (PIModel, PIFit, PIOperator), _pi_keys, _pi_from_keys)
+register_structure("pi", (PIModel, PIFit, PIOperator, HysteresisModel), _pi_keys, _pi_from_keys)
+
+
+# --- PI + creep (a bank of first-order lags of the input) ------------------------------------
+
+
+def _creep_keys(model: HysteresisModel) -> dict:
+    c = model.creep
+    creep = {
+        "time_constants": np.asarray(c.time_constants, np.float64),
+        "weights": np.asarray(c.weights, np.float64),
+        "dt": float(c.dt),
+        # At rest: each lag starts at the first input of whatever record the model runs on.
+        "starts_at_rest": c.initial_states is None,
+    }
+    if c.initial_states is not None:
+        creep["initial_states"] = np.asarray(c.initial_states, np.float64)
+    return {**_pi_keys(model), "dt": float(model.dt), "creep": creep}
+
+
+def _creep_from_keys(d: dict, source: str) -> HysteresisModel:
+    pi = _pi_from_keys(d, source)
+    cr = d.get("creep")
+    if not isinstance(cr, dict) or not {"time_constants", "weights", "dt"} <= set(cr):
+        raise DataError(f"{source}: `creep` must hold time_constants, weights and dt")
+    try:
+        z0 = cr.get("initial_states")
+        creep = Creep(np.asarray(cr["time_constants"], float), np.asarray(cr["weights"], float),
+                      float(cr["dt"]), None if z0 is None else np.asarray(z0, float))
+        return HysteresisModel(pi.operator(), creep, pi.offset, float(cr["dt"]))
+    except (TypeError, ValueError) as e:
+        raise DataError(f"{source}: unusable creep ({' '.join(str(e).split())})") from None
+
+
+register_structure("pi+creep", (HysteresisModel,), _creep_keys, _creep_from_keys)

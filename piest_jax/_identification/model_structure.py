@@ -1,0 +1,145 @@
+"""Choosing the model's structure: plain PI or PI + creep, and how many plays and lags.
+
+The same blocked hold-out as [`select_plays`][]: each candidate (n plays, K lags) is fitted on the
+first part of the record and scored by its RMSE on the held-out last block, which the model runs
+through from the states the first part left it in. A structure whose parameters the fitted part
+cannot determine (a lag slower than the record, plays the input barely moves) predicts the
+held-out block badly and loses; among candidates within `tolerance` of the best score the smaller
+wins, so the record has to show the gain of every added parameter.
+
+The search is coordinate-wise, to keep the number of fits small (each costs a full nonlinear
+fit): (1) the play count with the fewest lags offered (none by default), as [`select_plays`][]
+does; (2) the lag count at that play count, from the fewest up, stopping at the first that does
+not improve. The play count is not searched again with the chosen lags: that would double the
+cost, and a creep rarely makes plays that improved the held-out error useless. Every candidate
+is padded to the largest play and lag counts on records of up to `SHARED_UP_TO` samples, so that
+all share one compilation.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from .. import _checks
+from .._progress import progress
+from .fit import PIFit, fit_pi
+from .model_size import HOLDOUT, SHARED_UP_TO, holdout_mask
+
+LAG_CANDIDATES = (0, 1, 2, 3)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelChoice:
+    """The result of [`select_model`][].
+
+    **Fields:**
+
+    - `n_plays`, `n_lags`: the chosen counts; `structure`: `"pi"` or `"pi+creep"`.
+    - `candidates`: the (n_plays, n_lags) pairs tried, in order; `scores`: their held-out RMSE.
+    - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
+    """
+
+    n_plays: int
+    n_lags: int
+    candidates: tuple
+    scores: tuple
+    fit: PIFit
+
+    @property
+    def structure(self) -> str:
+        """`"pi"` or `"pi+creep"`."""
+        return "pi" if self.n_lags == 0 else "pi+creep"
+
+
+def select_model(
+    u,
+    y,
+    dt: float,
+    plays=(1, 2, 3, 4, 5, 6, 8, 10),
+    lags=LAG_CANDIDATES,
+    *,
+    holdout: float = HOLDOUT,
+    tolerance: float = 0.01,
+    patience: int = 2,
+    quiet: bool = True,
+    mask=None,
+    **fit_kwargs,
+) -> ModelChoice:
+    """Choose plain PI or PI + creep, the play count and the lag count by blocked hold-out.
+
+    **Arguments:**
+
+    - `u`, `y`: the record, (T,) each; `dt`: its sampling interval.
+    - `plays`: play counts to try (positive, distinct); `lags`: lag counts (>= 0, distinct; 0 is
+      the plain PI model, `(0,)` never adds creep).
+    - `holdout`, `tolerance`, `patience`, `quiet`, `mask`: as in [`select_plays`][].
+    - `fit_kwargs`: passed to [`fit_pi`][].
+
+    **Returns:** a [`ModelChoice`][]. Raises `ValueError` for bad candidates.
+    """
+    plays = tuple(sorted(int(c) for c in plays))
+    lags = tuple(sorted(int(k) for k in lags))
+    if not plays or plays[0] < 1 or len(set(plays)) != len(plays):
+        raise ValueError(f"`plays` must be distinct positive numbers, got {plays}")
+    if not lags or lags[0] < 0 or len(set(lags)) != len(lags):
+        raise ValueError(f"`lags` must be distinct numbers >= 0, got {lags}")
+    if tolerance < 0:
+        raise ValueError(f"`tolerance` must be non-negative, got {tolerance}")
+    if not isinstance(patience, (int, np.integer)) or patience < 1:
+        raise ValueError(f"`patience` must be a positive whole number, got {patience}")
+    u = _checks.signal(u, "u")
+    y = _checks.signal(y, "y")
+    T = u.shape[0]
+    used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
+    if used.shape != (T,):
+        raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
+    split = holdout_mask(T, holdout)
+    test = (split == 0) & (used > 0)
+    if not test.any():
+        raise ValueError("the held-out block has no used samples (all masked out)")
+    shared = T <= SHARED_UP_TO
+    pad = dict(pad_plays=max(plays), pad_lags=max(lags)) if shared else {}
+    yn = np.asarray(y)
+    # Scores closer than this are rounding, not a gain (a noise-free record fits to ~1e-12 of
+    # its spread; a flat one to ~1e-16 of its level).
+    fitted = yn[used > 0]
+    floor = 1e-8 * max(float(np.std(fitted)), 1e-6 * float(np.max(np.abs(fitted))), 1e-300)
+    scores: dict = {}
+    bar = progress(None, desc="models", quiet=quiet)
+
+    def fit_one(n, k, m):
+        kw = dict(pad) if shared else dict(pad_plays=None, pad_lags=None)
+        return fit_pi(u, y, n, n_lags=k, dt=dt, mask=m, **kw, **fit_kwargs)
+
+    def score(n, k):
+        if (n, k) not in scores:
+            f = fit_one(n, k, split * used)
+            pred = np.asarray(f(u))
+            scores[(n, k)] = float(np.sqrt(np.mean((pred[test] - yn[test]) ** 2)))
+            if hasattr(bar, "update"):
+                bar.update(1)
+        return scores[(n, k)]
+
+    def search(values, wait, make):
+        """The smallest value within tolerance of the best, trying values from the smallest up."""
+        tried, best, since = [], np.inf, 0
+        for v in values:
+            s = score(*make(v))
+            tried.append((v, s))
+            if s < best * (1 - tolerance) - floor:
+                best, since = s, 0
+            else:
+                since += 1
+                if since >= wait:
+                    break
+        best = min(s for _, s in tried)
+        return next(v for v, s in tried if s <= best * (1 + tolerance) + floor)
+
+    k_base = lags[0]
+    n = search(plays, patience, lambda v: (v, k_base))
+    k = search(lags, 1, lambda v: (n, v))
+    if hasattr(bar, "close"):
+        bar.close()
+    fit = fit_one(n, k, mask)
+    cands = tuple(scores)
+    return ModelChoice(n, k, cands, tuple(scores[c] for c in cands), fit)
