@@ -175,6 +175,15 @@ def test_cli_fit_and_compensate_with_creep(tmp_path, capsys):
     assert rep["validation_rmse"] == pytest.approx(0.5, rel=1e-2)
     assert rep["validation_rmse_ic"] < 1e-3
     assert rep["validation_fit_percent"] > 99.9
+    # fit.json is a model file: load_model gives the PI + creep model back, and its output on the
+    # identification record reproduces the reported RMSE; save_model writes the same keys.
+    assert rep["schema"] == 1 and rep["structure"] == "pi+creep"
+    model = pj.load_model(out / "fit.json")
+    assert isinstance(model, pj.HysteresisModel) and model.structure == "pi+creep"
+    y_fit = plant(u)
+    assert float(np.sqrt(np.mean((np.asarray(model(u)) - y_fit) ** 2))) == pytest.approx(rep["rmse"], rel=1e-6, abs=1e-12)
+    again = pj.load_model(pj.save_model(tmp_path / "again.json", model))
+    np.testing.assert_allclose(np.asarray(again(u)), np.asarray(model(u)), rtol=0, atol=1e-12)
     # piest compensate reads the creep and inverts PI + creep.
     t = DT * np.arange(300)
     yd = plant(u)[0] + 1.5 * np.sin(2 * np.pi * 0.4 * t) ** 2
