@@ -90,17 +90,18 @@ def _run_chunk(estimator: AbstractEstimator, state, Hn, yn, info, valid, window:
     n_win = Hn.shape[0] // window
     Hw = (Hn * valid[:, None])[: n_win * window].reshape(n_win, window, Hn.shape[1])
     gram = jnp.einsum("wti,wtj->wij", Hw, Hw) / window
-    eig = jnp.linalg.eigvalsh(gram)
-    if cert:
-        # The information A = Σ c_i h_i h_iᵀ of the closed form, at the end of every window.
-        c = jax.vmap(lambda h: sample_weight(h, estimator.dt, estimator.normalisation))(Hn) * valid
-        cw = c[: n_win * window].reshape(n_win, window)
-        per_window = jnp.einsum("wt,wti,wtj->wij", cw, Hw, Hw)
-        info_min = jnp.linalg.eigvalsh(info + jnp.cumsum(per_window, axis=0))[:, 0]
-        info = info + jnp.einsum("t,ti,tj->ij", c, Hn, Hn)
-    else:
-        info_min = jnp.zeros(n_win, Hn.dtype)
-    return state, w, e, eig[:, 0], eig[:, -1], info, info_min
+    if not cert:
+        eig = jnp.linalg.eigvalsh(gram)
+        return state, w, e, eig[:, 0], eig[:, -1], info, jnp.zeros(n_win, Hn.dtype)
+    # The information A = Σ c_i h_i h_iᵀ of the closed form, at the end of every window.
+    c = jax.vmap(lambda h: sample_weight(h, estimator.dt, estimator.normalisation))(Hn) * valid
+    cw = c[: n_win * window].reshape(n_win, window)
+    per_window = jnp.einsum("wt,wti,wtj->wij", cw, Hw, Hw)
+    # One eigensolver call for both batches: two batched calls side by side can deadlock
+    # XLA:CPU's intra-op thread pool on a two-core machine.
+    eig = jnp.linalg.eigvalsh(jnp.concatenate([gram, info + jnp.cumsum(per_window, axis=0)]))
+    info = info + jnp.einsum("t,ti,tj->ij", c, Hn, Hn)
+    return state, w, e, eig[:n_win, 0], eig[:n_win, -1], info, eig[n_win:, 0]
 
 
 def _as_record(u, y, dt):
