@@ -37,6 +37,11 @@ from ._excitation.montecarlo import draw_keys as draw_keys
 from ._excitation.montecarlo import mesh_sharding as mesh_sharding
 from ._excitation.montecarlo import pe_map as pe_map
 from ._excitation.condition import sharper_condition as sharper_condition
+from ._excitation.exact_condition import EventRows as EventRows
+from ._excitation.exact_condition import ExactCondition as ExactCondition
+from ._excitation.exact_condition import event_rows as event_rows
+from ._excitation.exact_condition import exact_condition as exact_condition
+from ._excitation.exact_condition import pe_margin as pe_margin
 from ._identification.compensate import Compensation as Compensation
 from ._identification.compensate import admissible_states as admissible_states
 from ._identification.compensate import evaluate_compensation as evaluate_compensation

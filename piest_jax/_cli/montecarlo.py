@@ -16,12 +16,13 @@ DESCRIPTION = """\
 Draw N random cases (input family and parameters, thresholds, initial states, weights), one PRNG
 key each, and for every draw compute the Assumption 1 ratio rho (smallest window range of u over
 2 r_max), the PE level c1 (absolute, and normalised as lambda_min / lambda_max of the worst
-window), which plays move in each window, the sharper condition, and the RLS weight error after
+window), which plays move in each window, the exact condition and the lower bound on c1 from the input's swings (see
+docs/excitation_condition.md), the earlier sharper condition, and the RLS weight error after
 the whole record. The families take turns: """ + ", ".join(FAMILIES) + """.
 Writes
   DIR/pe_map.png   c1 against rho by family (rho = 1 marked), the PE fraction against rho,
                    and the weight error against c1
-  DIR/pe_map.json  the counts (theorem_violations, pe_fraction_below_assumption, the sharper
+  DIR/pe_map.json  the counts (theorem_violations, pe_fraction_below_assumption, the exact
                    condition's violations), the tolerance, seconds, settings and every draw
 The batch is sharded over all JAX devices and run in chunks of --chunk draws.
 
@@ -107,7 +108,10 @@ def run(args) -> int:
     } | summary
     report["draws"] = {
         k: res[k]
-        for k in ("family", "rho", "c1", "c1_normalised", "min_excited", "redundant", "sharper")
+        for k in (
+            "family", "rho", "c1", "c1_normalised", "min_excited", "redundant", "sharper", "exact",
+            "exact_level", "margin",
+        )
     } | {"weight_error": res["weight_error"], "thresholds": res["thresholds"]}
     written = [_io.save_figure(_figure(res, settings, tol), out / "pe_map.png", dpi=110)]
     written.append(_io.write_json(out / "pe_map.json", report))
@@ -150,6 +154,11 @@ def _figure(res, settings, tol):
     ]
     mids = np.sqrt(np.maximum(edges[:-1], 1e-6) * np.maximum(edges[1:], 1e-6))
     a2.plot(mids, frac, "o-", label="PE (c1 > tolerance)")
+    exact = [
+        res["exact"][idx == b].mean() if np.any(idx == b) else np.nan
+        for b in range(len(edges) - 1)
+    ]
+    a2.plot(mids, exact, "x-.", label="exact condition holds")
     a2.plot(mids, sharp, "s--", label="sharper condition holds")
     a2.axvline(1.0, color="k", lw=1, ls="--")
     a2.set(xscale="log", ylim=(-0.05, 1.05), xlabel="ρ(T0)", ylabel="fraction of draws",
