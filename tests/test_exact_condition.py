@@ -98,6 +98,8 @@ def test_theorem3_no_condition_on_the_movement_pattern_alone_is_exact():
     np.testing.assert_array_equal(H1[:, 1] * 2, H1[:, 0])
     assert not bool(ec1.holds[0]) and bool(ec2.holds[0])
     assert exact_rank(exact_play(u, r, [2.0, 1.0])) == 1
+    # The earlier count-based sharper condition passes the dependent case: necessary only.
+    assert bool(pj.sharper_condition(H1, u, 6)[0])
     assert exact_rank(exact_play(u, r, [2.0, 1.5])) == 2
 
 
