@@ -154,7 +154,9 @@ def test_theorem2_matches_exact_rank_on_adversarial_inputs(case):
     np.testing.assert_array_equal(np.asarray(ec.holds), ref)
 
 
-@pytest.mark.parametrize("family", ["sine", "triangle", "steps", "noise", "decaying"])
+@pytest.mark.parametrize(
+    "family", ["sine", "triangle", "steps", "noise", "decaying", "ramp", "touch", "nested"]
+)
 def test_theorem2_matches_exact_rank_on_map_draws(family):
     # Fixed seed, map families: the condition against the rank of the play outputs in exact
     # rational arithmetic (the float Gram's verdict is not the reference: see the next test).
@@ -236,7 +238,7 @@ def test_theorem4_margin_is_a_lower_bound(case):
     _check_margin(u, r, x0, window, stride)
 
 
-@pytest.mark.parametrize("family", ["sine", "multisine", "chirp", "triangle", "steps"])
+@pytest.mark.parametrize("family", ["sine", "multisine", "chirp", "steps", "touch", "nested"])
 def test_theorem4_margin_on_map_draws(family):
     t = jnp.arange(1000) * 2e-3
     for i in range(5):
