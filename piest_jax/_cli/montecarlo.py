@@ -23,7 +23,7 @@ the whole record. The families take turns: """ + ", ".join(DEFAULT_FAMILIES) + "
 exactly 2 r_j apart with holds, loops just below 2 r_max) are adversarial cases asked for by name.
 Writes
   DIR/pe_map.png   c1 against rho by family (rho = 1 marked), the PE fraction against rho,
-                   and the weight error against c1
+                   the weight error against c1, and c1 against its margin
   DIR/pe_map.json  the counts (theorem_violations, pe_fraction_below_assumption, the exact
                    condition's violations), the tolerance, seconds, settings and every draw
 The batch is sharded over all JAX devices and run in chunks of --chunk draws.
@@ -133,7 +133,7 @@ def _figure(res, settings, tol):
     c1n = res["c1_normalised"]
     pe = c1n > tol
     floor = tol / 10
-    fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(15, 4.5))
+    fig, (a1, a2, a3, a4) = plt.subplots(1, 4, figsize=(20, 4.5))
     for f in settings.families:
         m = res["family"] == f
         a1.scatter(rho[m], np.maximum(c1n[m], floor), s=6, alpha=0.6, label=FAMILIES[f])
@@ -172,5 +172,15 @@ def _figure(res, settings, tol):
     a3.axvline(tol, color="r", lw=1, ls=":")
     a3.set(xscale="log", yscale="log", xlabel="normalised PE level c1",
            ylabel="RLS ‖Ŵ − W‖ / ‖W‖ after the record", title="weight error against c1")
+    # The margin (a lower bound on c1 from the input's swings between events) against c1.
+    ok = res["exact"] & (res["margin"] > 0) & (res["c1"] > 0)
+    if np.any(ok):
+        m, c = res["margin"][ok], res["c1"][ok]
+        a4.scatter(m, c, s=6, alpha=0.5)
+        lo, hi = min(m.min(), c.min()), max(m.max(), c.max())
+        a4.plot([lo, hi], [lo, hi], "k--", lw=1, label="c1 = margin")
+        a4.legend(fontsize=8)
+    a4.set(xscale="log", yscale="log", xlabel="margin (lower bound from the input)",
+           ylabel="PE level c1", title="c1 against its guaranteed margin")
     fig.tight_layout()
     return fig
