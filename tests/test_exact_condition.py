@@ -198,6 +198,10 @@ def test_exact_condition_validation():
         pj.exact_condition(H, u, r[:1], 5)
     with pytest.raises(ValueError, match="`H`"):
         pj.exact_condition(H[:, 0], u, r, 5)
+    with pytest.raises(ValueError, match="`tol`"):
+        pj.exact_condition(H, u, r, 5, tol=-1.0)
+    with pytest.raises(ValueError, match="`tol`"):
+        pj.pe_margin(H, u, r, 5, tol="small")
     bad = H.copy()
     bad[3, 0] = np.nan
     with pytest.raises(eqx.EquinoxRuntimeError, match="NaN"):

@@ -27,6 +27,14 @@ from .map_settings import numerical_tolerance
 from .pe import _window_args
 
 
+def _tolerance(tol, dtype):
+    if tol is None:
+        return numerical_tolerance(dtype)
+    if isinstance(tol, bool) or not isinstance(tol, int | float) or not 0 <= tol < 1:
+        raise ValueError(f"`tol` must be a number in [0, 1) (a level λ_min / λ_max), got {tol!r}")
+    return float(tol)
+
+
 def _inputs(H, u, r, window, stride):
     H = jnp.asarray(H)
     if not jnp.issubdtype(H.dtype, jnp.floating):
@@ -139,7 +147,7 @@ def exact_condition(H, u, r, window: int, *, stride: int = 1, tol=None) -> Exact
     **Returns:** an [`ExactCondition`][] `(holds, level, tolerance)`.
     """
     H, u, r = _inputs(H, u, r, window, stride)
-    tol = numerical_tolerance(H.dtype) if tol is None else tol
+    tol = _tolerance(tol, H.dtype)
     level = _event_level(H, u, r, window, stride)
     tol = jnp.asarray(tol, H.dtype)
     return ExactCondition(level > tol, level, tol)
@@ -194,7 +202,7 @@ def pe_margin(H, u, r, window: int, *, stride: int = 1, tol=None) -> Float[Array
     (up to rounding, about n eps times the Gram's largest eigenvalue).
     """
     H, u, r = _inputs(H, u, r, window, stride)
-    tol = numerical_tolerance(H.dtype) if tol is None else tol
+    tol = _tolerance(tol, H.dtype)
     ok = _event_level(H, u, r, window, stride) > tol
     return jnp.where(ok, _margin(H, u, r, window, stride), 0.0)
 
