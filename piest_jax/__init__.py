@@ -60,6 +60,11 @@ _EXPORTS = {
     "windowed_pe_levels": ("._excitation.pe", "windowed_pe_levels"),
     "windowed_range": ("._excitation.pe", "windowed_range"),
     "sharper_condition": ("._excitation.condition", "sharper_condition"),
+    "EventRows": ("._excitation.exact_condition", "EventRows"),
+    "ExactCondition": ("._excitation.exact_condition", "ExactCondition"),
+    "event_rows": ("._excitation.exact_condition", "event_rows"),
+    "exact_condition": ("._excitation.exact_condition", "exact_condition"),
+    "pe_margin": ("._excitation.exact_condition", "pe_margin"),
     "draw_statistics": ("._excitation.draw_metrics", "draw_statistics"),
     "summarise": ("._excitation.map_report", "summarise"),
     "MapSettings": ("._excitation.map_settings", "MapSettings"),
@@ -161,6 +166,11 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._estimation.rls import ContinuousRLS as ContinuousRLS
     from ._estimation.rls import ForgettingRLS as ForgettingRLS
     from ._excitation.condition import sharper_condition as sharper_condition
+    from ._excitation.exact_condition import EventRows as EventRows
+    from ._excitation.exact_condition import ExactCondition as ExactCondition
+    from ._excitation.exact_condition import event_rows as event_rows
+    from ._excitation.exact_condition import exact_condition as exact_condition
+    from ._excitation.exact_condition import pe_margin as pe_margin
     from ._excitation.draw_metrics import draw_statistics as draw_statistics
     from ._excitation.families import FAMILIES as INPUT_FAMILIES  # noqa: F401
     from ._excitation.families import draw_case as draw_case

@@ -103,3 +103,63 @@ def branches(u, r, x0=0.0):
         codes[t] = np.where(x < lo, -1, np.where(x > hi, 1, 0))
         x = np.clip(x, lo, hi)
     return codes, margin
+
+
+def exact_play(u, r, x0=0.0):
+    """Play outputs in exact rational arithmetic, as a list of rows of `fractions.Fraction`.
+
+    Every float is a dyadic rational, so the samples, thresholds and states are taken exactly and
+    the clamp is evaluated without rounding: the outputs of the sampled input as mathematics
+    defines them, not as floating point rounds them.
+    """
+    from fractions import Fraction
+
+    u = [Fraction(float(v)) for v in np.asarray(u, dtype=np.float64)]
+    r = [Fraction(float(v)) for v in np.atleast_1d(np.asarray(r, dtype=np.float64))]
+    x0 = np.broadcast_to(np.asarray(x0, dtype=np.float64), (len(r),))
+    x = [Fraction(float(v)) for v in x0]
+    out = []
+    for ut in u:
+        x = [max(ut - rj, min(ut + rj, xj)) for xj, rj in zip(x, r)]
+        out.append(list(x))
+    return out
+
+
+def exact_rank(rows):
+    """Rank of a matrix of Fractions (a list of rows) by elimination on integers, exactly."""
+    from math import gcd, lcm
+
+    rows = [list(row) for row in rows]
+    if not rows:
+        return 0
+    den = 1
+    for row in rows:
+        for v in row:
+            den = lcm(den, v.denominator)
+    A = [[int(v * den) for v in row] for row in rows]
+    n = len(A[0])
+    rank = 0
+    for col in range(n):
+        piv = next((i for i in range(rank, len(A)) if A[i][col] != 0), None)
+        if piv is None:
+            continue
+        A[rank], A[piv] = A[piv], A[rank]
+        p = A[rank]
+        for i in range(rank + 1, len(A)):
+            a = A[i][col]
+            if a:
+                row = [p[col] * A[i][j] - a * p[j] for j in range(n)]
+                # Dividing a row by the gcd of its entries keeps the integers small, exactly.
+                g = gcd(*row)
+                A[i] = [v // g for v in row] if g > 1 else row
+        rank += 1
+    return rank
+
+
+def exact_window_pe(u, r, x0, window, stride):
+    """Per window: do the exact play outputs of the window have full column rank?"""
+    H = exact_play(u, r, x0)
+    n = len(H[0])
+    return np.array(
+        [exact_rank(H[a : a + window]) == n for a in range(0, len(H) - window + 1, stride)]
+    )

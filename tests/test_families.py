@@ -115,8 +115,8 @@ def test_bad_arguments():
     key = jax.random.key(0)
     with pytest.raises(ValueError, match="unknown input family 'square'"):
         F.draw_case(key, "square", T, 3)
-    with pytest.raises(ValueError, match="unknown input family 9"):
-        F.family_indices([9])
+    with pytest.raises(ValueError, match="unknown input family 99"):
+        F.family_indices([99])
     with pytest.raises(ValueError, match="no input family"):
         F.family_indices([])
     with pytest.raises(ValueError, match="number of plays must be a positive whole number"):

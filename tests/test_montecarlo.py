@@ -106,11 +106,18 @@ def test_map_counts(pemap, settings):
     assert s["n"] == N_DRAWS
     # the map covers both sides of Assumption 1 and both outcomes
     assert 0 < s["assumption_holds"] < N_DRAWS and 0 < s["pe"] < N_DRAWS
-    # the sharper condition is necessary for PE: no draw fails it and is still PE
-    assert s["sharper_fails_pe"] == 0
-    # every counterexample to Theorem 1 on this map is one the sharper condition explains
+    # the sharper_* keys count the exact condition: on this map it agrees with the verdict
+    assert s["sharper_fails_pe"] == 0 and s["sharper_holds_not_pe"] == 0
+    assert s["exact_condition"]["violations"] == 0
+    # the earlier condition is necessary: no draw fails it and is still PE
+    assert s["old_sharper_fails_pe"] == 0
+    # every counterexample to Theorem 1 on this map is one the exact condition explains
     assert s["theorem_violations_failing_sharper"] == s["theorem_violations"]
     assert sum(f["n"] for f in s["per_family"].values()) == N_DRAWS
+    # the margin is a lower bound on c1 for every draw, positive exactly where the condition holds
+    assert s["margin"]["violations"] == 0
+    assert np.all((pemap["margin"] > 0) == pemap["exact"])
+    assert np.all(pemap["margin"] <= pemap["c1"] + s["tolerance"] * pemap["gram_scale"])
 
 
 CASE = dict(n_samples=2001, n_plays=3, window=300, stride=10, dt=2e-3)

@@ -19,6 +19,7 @@ from jax import lax
 from .map_settings import MapSettings, numerical_tolerance
 from .._operators.play import _bank
 from .condition import default_atol, holds, window_stats
+from .exact_condition import _event_level, _margin
 
 
 def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
@@ -32,7 +33,10 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
     booleans, `min_excited` (fewest plays moving in any window), `redundant` (the largest
     n − min(K, J) over windows: K distinct moving shapes, J samples with movement),
     `zero_frozen` (some window has a play frozen at 0), `twin_triple` (some window has three
-    pairwise twin plays), `sharper` (the sharper condition in every window), `weight_error`.
+    pairwise twin plays), `sharper` (the sharper condition in every window), `exact` (the exact
+    condition, `exact_condition`, in every window), `exact_level` (the smallest event-matrix
+    level λ_min / λ_max over windows), `margin` (the smallest `pe_margin` over windows: a lower
+    bound on c1), `weight_error`.
     """
     s = settings
     dtype = u.dtype
@@ -40,6 +44,9 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
     # checks of `play` (their runtime error branches do not mix with shard_map).
     H = _bank(u, r, x0, s.play_method)
     stats = window_stats(H, u, s.window, s.stride, numerical_tolerance(dtype), default_atol(u, r))
+    level = _event_level(H, u, r, s.window, s.stride)
+    exact = level > numerical_tolerance(dtype)
+    margin = jnp.where(exact, _margin(H, u, r, s.window, s.stride), 0.0)
     Hr = H[: s.rls_samples]
     c = (s.dt / (1 + jnp.sum(Hr * Hr, axis=1)) ** 2).astype(dtype)
     A = (Hr * c[:, None]).T @ Hr
@@ -64,5 +71,8 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
         zero_frozen=jnp.any(stats.zero_frozen),
         twin_triple=jnp.any(stats.twin_triple),
         sharper=jnp.all(holds(stats, r.shape[0])),
+        exact=jnp.all(exact),
+        exact_level=jnp.min(level),
+        margin=jnp.min(margin),
         weight_error=jnp.linalg.norm(err) / jnp.linalg.norm(w),
     )

@@ -19,7 +19,13 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from .._custom_types import Signal, States, Thresholds
 from .signals import chirp, triangle
 
-FAMILIES = ("sine", "multisine", "noise", "chirp", "triangle", "decaying", "steps")
+FAMILIES = (
+    "sine", "multisine", "noise", "chirp", "triangle", "decaying", "steps",
+    "ramp", "touch", "nested",
+)
+# The families a map draws from unless told otherwise; the last three are adversarial cases for
+# the exact excitation condition (docs/excitation_condition.md) and are asked for by name.
+DEFAULT_FAMILIES = FAMILIES[:7]
 AMPLITUDE_RANGE = (0.3, 4.0)
 FREQUENCY_RANGE = (0.2, 5.0)
 
@@ -102,12 +108,51 @@ def _steps(v, t, r_max):
     return levels[jnp.sum(t[:, None] >= switches, axis=1)]
 
 
-_BRANCHES = (_sine, _multisine, _noise, _chirp, _triangle, _decaying, _steps)
+def _ramp(v, t, r):
+    a, f, o, p = _common(v, r[-1])
+    # A triangle ten times slower: monotone stretches longer than a window, of range up to 8 r_max.
+    return triangle(t, a, f / 10, o, p)
+
+
+def _touch(v, t, r):
+    # A square wave with random holds between −m r_j and +m r_j, m in {1, 2, 4}: products by
+    # powers of two are exact, so at m = 1 play j's other envelope is touched exactly and the
+    # play does not move; at m = 2, 4 it sweeps.
+    j = jnp.minimum((v[0] * r.shape[0]).astype(int), r.shape[0] - 1)
+    m = jnp.asarray([1.0, 2.0, 4.0], t.dtype)[jnp.minimum((v[1] * 3).astype(int), 2)]
+    # A zero threshold (the play that is u itself) gives way to r_max: the input must move.
+    level = m * jnp.where(r[j] > 0, r[j], r[-1])
+    span = t[-1] - t[0]
+    switches = t[0] + span * jnp.sort(v[2 : 2 + _LEVELS])
+    flips = jnp.sum(t[:, None] >= switches, axis=1)
+    return jnp.where(flips % 2 == 0, -level, level)
+
+
+def _nested(v, t, r):
+    a, f, o, _ = _common(v, r[-1])
+    # One large cycle over the first fifth of the record, then loops of peak-to-peak
+    # 2 r_max (1 − ε), ε log-uniform in [1e-9, 1e-2]: just too small to sweep the largest play.
+    eps = _log_uniform(v[4], 1e-9, 1e-2)
+    span = t[-1] - t[0] + (t[1] - t[0])
+    tt = t - t[0]
+    first = tt < 0.2 * span
+    big = o + a * jnp.sin(2 * jnp.pi * tt / (0.2 * span))
+    loops = o + r[-1] * (1 - eps) * jnp.sin(2 * jnp.pi * f * tt)
+    return jnp.where(first, big, loops)
+
+
+def _on_r_max(branch):
+    return lambda v, t, r: branch(v, t, r[-1])
+
+
+_BRANCHES = tuple(
+    _on_r_max(b) for b in (_sine, _multisine, _noise, _chirp, _triangle, _decaying, _steps)
+) + (_ramp, _touch, _nested)
 
 
 def _n_uniforms(index: int, T: int) -> int:
     """How many uniforms the generator of family `index` reads for a record of T samples."""
-    return (4, 13, 5 + T // 2, 5, 4, 5, 3 + 2 * _LEVELS)[index]
+    return (4, 13, 5 + T // 2, 5, 4, 5, 3 + 2 * _LEVELS, 4, 2 + _LEVELS, 5)[index]
 
 
 def _grid(t):
@@ -125,14 +170,16 @@ def draw_input(key: PRNGKeyArray, family, t: Signal, r_max) -> Signal:
     - `key`: a PRNG key.
     - `family`: a name from `FAMILIES` or its index (static: it picks the generator).
     - `t`: the uniform time grid (T,), at least two samples.
-    - `r_max`: the largest threshold; amplitudes and offsets scale with it.
+    - `r_max`: the largest threshold; amplitudes and offsets scale with it. A threshold vector
+      (n,) may be given instead (the `touch` family picks one of its thresholds).
 
     **Returns:** u (T,) in the dtype of `t`.
     """
     (index,) = family_indices((family,))
     t = _grid(t)
     v = jax.random.uniform(key, (_n_uniforms(index, t.shape[0]),), t.dtype)
-    return _BRANCHES[index](v, t, jnp.asarray(r_max, t.dtype)).astype(t.dtype)
+    r = jnp.atleast_1d(jnp.asarray(r_max, t.dtype))
+    return _BRANCHES[index](v, t, r).astype(t.dtype)
 
 
 def _plays(n) -> int:
@@ -224,7 +271,7 @@ def draw_case(key: PRNGKeyArray, family, t: Signal, n_plays: int):
     m = _n_uniforms(index, t.shape[0])
     v = jax.random.uniform(key, (m + 3 * n + 2,), t.dtype)
     r = _thresholds(v[m : m + n + 1], n)
-    u = _BRANCHES[index](v[:m], t, r[-1]).astype(t.dtype)
+    u = _BRANCHES[index](v[:m], t, r).astype(t.dtype)
     x0 = _states(v[m + n + 1 : m + 2 * n + 2], r, u[0])
     w = 0.5 + 4.5 * v[m + 2 * n + 2 :]
     return u, r, x0, w

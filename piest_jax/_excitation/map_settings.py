@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .families import FAMILIES, family_indices
+from .families import DEFAULT_FAMILIES, family_indices
 from .._operators.play import METHODS
 
 
@@ -43,7 +43,7 @@ def make_settings(
     dt: float = 2e-3,
     P0: float = 1e6,
     rls_samples: int | None = None,
-    families=FAMILIES,
+    families=DEFAULT_FAMILIES,
     dtype=None,
     play_method: str = "scan",
 ) -> MapSettings:
@@ -51,7 +51,8 @@ def make_settings(
 
     **Arguments:** `n_samples` >= 2; `n_plays` >= 1; `window` in [1, n_samples] (default
     n_samples // 5); `stride` >= 1 (default window // 10); `dt` > 0; `P0` > 0; `rls_samples` in
-    [1, n_samples] (default n_samples); `families`, names from `FAMILIES`; `dtype`, float32 or
+    [1, n_samples] (default n_samples); `families`, names from `FAMILIES` (default
+    `DEFAULT_FAMILIES`, the seven non-adversarial ones); `dtype`, float32 or
     float64 (default JAX's default float); `play_method` as in `piest_jax.play`.
 
     **Returns:** a [`MapSettings`][]. Bad values raise `ValueError` naming the argument.
