@@ -15,6 +15,8 @@ import piest_jax as pj
 from piest_jax._cli import main
 from piest_jax import estimate_record, settled_start
 
+import reference as ref
+
 R = np.array([0.0, 0.4, 0.9, 1.5])
 W = np.array([1.0, 0.6, 0.4, 0.3])
 DT = 0.01
@@ -28,14 +30,6 @@ def _record(n=900, seed=0, noise=0.0):
     return u, y + 0.5 + noise * rng.normal(size=n)
 
 
-def _plays(u, r, x0):
-    x, out = np.array(x0, float), np.empty((len(u), len(r)))
-    for i, v in enumerate(u):
-        x = np.maximum(v - r, np.minimum(v + r, x))
-        out[i] = x
-    return out
-
-
 @pytest.mark.parametrize("chunk", [64, 100, 4096])
 def test_chunks_equal_one_scan_over_the_record(chunk):
     u, y = _record()
@@ -43,15 +37,15 @@ def test_chunks_equal_one_scan_over_the_record(chunk):
     res = estimate_record(est, u, y, R, dt=DT, window=50, chunk=chunk)
     # The reference: the whole regressor at once, scaled as the streamed run scales it.
     a, b = np.max(np.abs(u)), np.max(np.abs(y))
-    H = np.column_stack([_plays(u, R, np.full(4, u[0])) / a, np.ones(len(u))])
-    ref = pj.estimate(est, jnp.asarray(H), jnp.asarray(y / b))
-    w_ref = np.asarray(ref.weights[-1]) * b / np.r_[np.full(4, a), 1.0]
+    H = np.column_stack([ref.play(u, R, np.full(4, u[0])) / a, np.ones(len(u))])
+    whole = pj.estimate(est, jnp.asarray(H), jnp.asarray(y / b))
+    w_ref = np.asarray(whole.weights[-1]) * b / np.r_[np.full(4, a), 1.0]
     tol = dict(rtol=2e-4, atol=2e-4 * np.max(np.abs(w_ref)))
     assert np.allclose(res.weights, w_ref[:4], **tol) and np.isclose(res.offset, w_ref[4], **tol)
     # The kept trajectory is the reference's at the kept instants.
     k = np.round(np.asarray(res.t) / DT).astype(int)
     assert k[-1] == len(u) - 1
-    assert np.allclose(res.weights_trajectory, np.asarray(ref.weights)[k, :4] * b / a, rtol=2e-4, atol=2e-4 * np.max(np.abs(w_ref)))
+    assert np.allclose(res.weights_trajectory, np.asarray(whole.weights)[k, :4] * b / a, rtol=2e-4, atol=2e-4 * np.max(np.abs(w_ref)))
     # PE levels and the certificate, window by window, as the whole-record functions give them.
     levels = pj.windowed_pe_levels(jnp.asarray(H), 50, stride=50)
     assert np.allclose(res.pe_levels, levels, rtol=1e-3, atol=1e-7)
@@ -68,7 +62,7 @@ def test_final_weights_recover_a_noise_free_model():
     assert res.final_rmse < 1e-3
     assert np.all(res.exciting)
     # final_rmse is the RMSE of the model with the final weights over the record.
-    pred = _plays(u, R, np.full(4, u[0])) @ np.asarray(res.weights) + float(res.offset)
+    pred = ref.play(u, R, np.full(4, u[0])) @ np.asarray(res.weights) + float(res.offset)
     assert res.final_rmse == pytest.approx(np.sqrt(np.mean((pred - y) ** 2)), rel=1e-4, abs=1e-9)
 
 
@@ -77,7 +71,7 @@ def test_start_carries_the_play_states_through_the_skipped_samples():
     k = 237
     est = pj.ForgettingRLS(1e3, 0.999)
     skipped = estimate_record(est, u, y, R, dt=DT, start=k, window=60)
-    x_k = _plays(u[: k + 1], R, np.full(4, u[0]))[k - 1]
+    x_k = ref.play(u[: k + 1], R, np.full(4, u[0]))[k - 1]
     direct = estimate_record(est, u[k:], y[k:], R, dt=DT, initial_states=x_k, window=60)
     assert np.allclose(skipped.weights, direct.weights, rtol=1e-5, atol=1e-6)
     assert np.allclose(skipped.initial_states, x_k)

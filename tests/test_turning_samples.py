@@ -13,13 +13,7 @@ from piest_jax._data.record import Record
 from piest_jax._diagnosis import effects as _effects
 from piest_jax._diagnosis.scaling import prepared, scaling_of
 
-
-def _play_loop(u, r, x0):
-    x, out = np.array(x0, float), np.empty((len(u), len(r)))
-    for i, v in enumerate(u):
-        x = np.maximum(v - r, np.minimum(v + r, x))
-        out[i] = x
-    return out
+import reference as ref
 
 
 @settings(max_examples=200, deadline=None)
@@ -40,10 +34,10 @@ def test_plays_on_turning_samples_equal_the_full_rate_plays(seed, n, step, level
     x0 = u[0] + rng.uniform(-1, 1, 5) * r
     index, keep = _effects.turning_samples(u, step)
     assert np.all(np.diff(index) > 0) and index[0] == 0
-    full = _play_loop(u, r, x0)
+    full = ref.play(u, r, x0)
     kept = np.arange(0, ((n - 1) // step) * step + 1, step)
     assert np.array_equal(index[keep], kept)
-    reduced = _play_loop(u[index], r, x0)[keep]
+    reduced = ref.play(u[index], r, x0)[keep]
     assert np.array_equal(reduced, full[kept])
     assert np.array_equal(_effects.plays(u[index], r, x0[None], keep)[0], full[kept])
 

@@ -13,20 +13,14 @@ from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._diagnosis import effects as _effects
 from piest_jax._diagnosis.scaling import prepared, scaling_of
 
+import reference as ref
+
 
 def _record(n=1500, seed=0):
     rng = np.random.default_rng(seed)
     t = np.arange(n) * 0.01
     u = np.sin(2 * np.pi * 0.8 * t) * (1 + 0.3 * np.sin(2 * np.pi * 0.07 * t)) + 0.05 * rng.normal(size=n)
     return Record(t, u, u.copy())
-
-
-def _plays_loop(u, r, x0):
-    x, out = np.array(x0, float), np.empty((len(u), len(r)))
-    for i, v in enumerate(u):
-        x = np.maximum(v - r, np.minimum(v + r, x))
-        out[i] = x
-    return out
 
 
 def _model(cfg, seed=1):
@@ -48,7 +42,7 @@ def test_offset_and_initial_states_are_recovered(taus):
     # The truth, from plain loops: plays from the history's states, creep modes from states
     # away from rest, and an offset.
     x0 = _effects.history_states(p.u[0], history)
-    v = _plays_loop(p.u, _effects.THRESHOLDS, x0) @ w[: _effects.N_PLAYS] + w[_effects.N_PLAYS]
+    v = ref.play(p.u, _effects.THRESHOLDS, x0) @ w[: _effects.N_PLAYS] + w[_effects.N_PLAYS]
     y = v.copy()
     delta = np.array([0.3, -0.2])[: len(taus)]
     for k, tau in enumerate(taus):
