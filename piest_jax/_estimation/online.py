@@ -193,7 +193,7 @@ def estimate_record(
     # The kept instants: `keep` evenly spaced samples, the last one included.
     marks = np.unique(np.linspace(0, T - 1, min(keep, T)).round().astype(int))
     w_keep, lam_min, lam_max, infos = [], [], [], []
-    e_sq_cum, last = 0.0, 0
+    e_sq_cum = 0.0
     err_at_marks = []
     for first in range(0, T, chunk):
         stop = min(first + chunk, T)

@@ -16,13 +16,11 @@ Levenberg-Marquardt from the model's own states (the plays relaxed at u_0 when n
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optimistix as optx
 
 from .. import _checks
 from .._custom_types import Scalar, Signal
 from .._models.composite import HysteresisModel
-from .._operators.pi import PIOperator
 
 
 class Comparison(eqx.Module):
