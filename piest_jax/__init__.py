@@ -89,6 +89,7 @@ _EXPORTS = {
     "PIModel": ("._identification.pi_model", "PIModel"),
     "Comparison": ("._identification.compare", "Comparison"),
     "compare": ("._identification.compare", "compare"),
+    "fit_percent": ("._identification.compare", "fit_percent"),
     "initial_time_constants": ("._identification.fit", "initial_time_constants"),
     "ModelChoice": ("._identification.model_structure", "ModelChoice"),
     "select_model": ("._identification.model_structure", "select_model"),
@@ -211,6 +212,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.pi_model import PIModel as PIModel
     from ._identification.compare import Comparison as Comparison
     from ._identification.compare import compare as compare
+    from ._identification.compare import fit_percent as fit_percent
     from ._identification.fit import initial_time_constants as initial_time_constants
     from ._identification.model_structure import ModelChoice as ModelChoice
     from ._identification.model_structure import select_model as select_model

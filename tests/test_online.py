@@ -124,11 +124,14 @@ def test_cli_writes_the_report(tmp_path, capsys):
     assert (out / "estimate.png").stat().st_size > 0
     # The library call gives the same numbers.
     u, y = np.loadtxt(p, delimiter=",", skiprows=1)[:, 1:].T
+    # The command computes in float64; the library call does too here, and the setting the
+    # worker had is restored after.
+    before = jax.config.jax_enable_x64
     jax.config.update("jax_enable_x64", True)
     try:
         res = estimate_record(pj.ContinuousRLS(1e8, DT), u, y, R, dt=DT)
     finally:
-        jax.config.update("jax_enable_x64", False)
+        jax.config.update("jax_enable_x64", before)
     assert np.allclose(rep["weights_final"], res.weights, rtol=1e-9)
 
 

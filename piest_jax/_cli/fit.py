@@ -59,29 +59,24 @@ def plays_arg(text: str):
         raise argparse.ArgumentTypeError(f"{e}; or 'auto'") from None
 
 
-def plays_list(text: str) -> list[int]:
-    items = [s.strip() for s in text.split(",")]
-    try:
-        values = [positive_int(s) for s in items]
-    except argparse.ArgumentTypeError as e:
-        raise argparse.ArgumentTypeError(f"expected positive whole numbers like 2,3,4: {e}") from None
-    if len(set(values)) != len(values):
-        raise argparse.ArgumentTypeError(f"repeated number of plays in {text!r}")
-    return values
+def _counts(what: str, one: str, example: str):
+    """A parser of comma-separated distinct positive counts (plays, lags)."""
+
+    def parse(text: str) -> list[int]:
+        try:
+            values = [positive_int(s.strip()) for s in text.split(",")]
+        except argparse.ArgumentTypeError as e:
+            raise argparse.ArgumentTypeError(f"expected {what} like {example}: {e}") from None
+        if len(set(values)) != len(values):
+            raise argparse.ArgumentTypeError(f"repeated {one} in {text!r}")
+        return values
+
+    return parse
 
 
+plays_list = _counts("numbers of plays", "number of plays", "2,3,4")
+lags_list = _counts("lag counts", "lag count", "1,2,3")
 MODELS = ("auto", "pi", "pi+creep")
-
-
-def lags_list(text: str) -> list[int]:
-    items = [s.strip() for s in text.split(",")]
-    try:
-        values = [positive_int(s) for s in items]
-    except argparse.ArgumentTypeError as e:
-        raise argparse.ArgumentTypeError(f"expected lag counts like 1,2,3: {e}") from None
-    if len(set(values)) != len(values):
-        raise argparse.ArgumentTypeError(f"repeated lag count in {text!r}")
-    return values
 
 
 def add_arguments(p):

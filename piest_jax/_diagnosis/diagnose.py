@@ -24,6 +24,7 @@ from . import effects as _effects
 from . import locate as _locate
 from . import refine as _refine
 from .._data.record import Record
+from .._identification.compare import fit_percent
 from .effects import EFFECTS
 from .._progress import progress
 from .scaling import Scaling as Scaling
@@ -344,21 +345,23 @@ def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False, histor
 
     **Returns:** `(prediction, rmse)`.
     """
-    p = prepared(rec, sc)
-    if model.get("refined") is not None:
-        pred = _refine.predict(model["refined"], p, model["norm"], transferable_only=transferable_only,
-                               history=history)
-    else:
-        cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
-        if transferable_only or history is not None:
-            cfg.pop("initial_state", None)
-            if cfg.pop("offset_drift", None) is not None:
-                w = w[: len(w) - _effects.N_DRIFT]
-        if history is not None:
-            cfg["initial_state"] = tuple(history)
-        pred = _effects.predict(p, cfg, w, np.asarray(model["coef_v"]), model["norm"])
-    pred = pred * sc.y_half + sc.y_mid
+    pred = _predict(prepared(rec, sc), model, transferable_only, history) * sc.y_half + sc.y_mid
     return pred, float(np.sqrt(np.mean((pred - rec.y) ** 2)))
+
+
+def _predict(p, model, transferable_only, history):
+    """A model's output on a prepared record, normalised units (see `evaluate`)."""
+    if model.get("refined") is not None:
+        return _refine.predict(model["refined"], p, model["norm"], transferable_only=transferable_only,
+                               history=history)
+    cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
+    if transferable_only or history is not None:
+        cfg.pop("initial_state", None)
+        if cfg.pop("offset_drift", None) is not None:
+            w = w[: len(w) - _effects.N_DRIFT]
+    if history is not None:
+        cfg["initial_state"] = tuple(history)
+    return _effects.predict(p, cfg, w, np.asarray(model["coef_v"]), model["norm"])
 
 
 def _creep_taus(model):
@@ -384,12 +387,12 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
     turning points in the record's input units (empty for relaxed plays) and `creep_states`.
     """
     p = prepared(rec, sc)
-    lam = np.exp(-p.dt / _creep_taus(model)) if _creep_taus(model).size else np.zeros(0)
+    lam = np.exp(-p.dt / _creep_taus(model))
     k = np.arange(len(rec.y))[:, None]
     C = np.column_stack([np.ones(len(rec.y)), lam[None, :] ** (k + 1)])
     best = None
     for history in [None, *_effects.grid("initial_state", p)]:
-        pred, _ = evaluate(rec, sc, model, transferable_only=True, history=history)
+        pred = _predict(p, model, True, history) * sc.y_half + sc.y_mid
         coef = np.linalg.lstsq(C, rec.y - pred, rcond=None)[0]
         full = pred + C @ coef
         rmse = float(np.sqrt(np.mean((full - rec.y) ** 2)))
@@ -398,12 +401,6 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
             best = (full, rmse, dict(offset=float(coef[0]), history_turning_points=turns,
                                      creep_states=[float(c) for c in coef[1:]]))
     return best
-
-
-def fit_percent(y, pred) -> float:
-    """The fit percentage system identification reports: 100 (1 - |y - pred| / |y - mean(y)|)."""
-    y, pred = np.asarray(y, float), np.asarray(pred, float)
-    return float(100.0 * (1.0 - np.linalg.norm(y - pred) / max(np.linalg.norm(y - y.mean()), 1e-300)))
 
 
 def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
@@ -460,9 +457,10 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
             # states) estimated on it, everything else fixed: what the model predicts of a run
             # already in motion, as system identification tools report it.
             baseline_rmse_ic=rbi, final_rmse_ic=rfi,
-            baseline_fit_percent=fit_percent(validation.y, vb), final_fit_percent=fit_percent(validation.y, vf),
-            baseline_fit_percent_ic=fit_percent(validation.y, vbi),
-            final_fit_percent_ic=fit_percent(validation.y, vfi),
+            baseline_fit_percent=float(fit_percent(validation.y, vb)),
+            final_fit_percent=float(fit_percent(validation.y, vf)),
+            baseline_fit_percent_ic=float(fit_percent(validation.y, vbi)),
+            final_fit_percent_ic=float(fit_percent(validation.y, vfi)),
             initial_conditions=dict(baseline=est_b, final=est_f),
             noise_std_estimate=noise_std(validation.y),
             # The same with each model's mean residual removed: a sensor zero that moved

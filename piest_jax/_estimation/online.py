@@ -24,6 +24,7 @@ from jax import lax
 from jaxtyping import Array, Float
 
 from .. import _checks
+from .._excitation.map_settings import numerical_tolerance
 from .._operators.play import play
 from .estimators import AbstractEstimator
 from .rls import ContinuousRLS, sample_weight
@@ -226,9 +227,7 @@ def estimate_record(
     off = float(W[-1, n]) if offset else 0.0
     final_rmse = _final_rmse(u, y, r, x0, weights, off, chunk)
     lo, hi = np.concatenate(lam_min), np.concatenate(lam_max)
-    from .._excitation.map_settings import numerical_tolerance
-
-    exciting = lo > numerical_tolerance(np.float64 if dtype == jnp.float64 else np.float32) * np.maximum(hi, 1e-300)
+    exciting = lo > numerical_tolerance(dtype) * np.maximum(hi, 1e-300)
     if cert:
         P0 = np.asarray(estimator.P0, float)
         r0 = np.linalg.eigvalsh(np.linalg.inv(P0 if P0.ndim == 2 else P0 * np.eye(m)))

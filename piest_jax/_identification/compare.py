@@ -123,8 +123,15 @@ def compare(model, u, y=None, *, estimate_initial: bool = True, max_steps: int =
         theta = _estimate(m, u, y, max_steps, rtol, atol)
         m = _with_ic(m, theta, u[0])
     pred = m(u)
-    e = pred - y
-    rmse = jnp.sqrt(jnp.mean(e**2))
+    rmse = jnp.sqrt(jnp.mean((pred - y) ** 2))
+    return Comparison(pred, rmse, fit_percent(y, pred), m)
+
+
+def fit_percent(y, prediction):
+    """The fit percentage system identification reports: 100 (1 − ‖y − ŷ‖ / ‖y − mean(y)‖).
+
+    100 is a perfect prediction, 0 one no better than the record's mean; NaN for a constant `y`.
+    """
+    y, prediction = jnp.asarray(y), jnp.asarray(prediction)
     spread = jnp.linalg.norm(y - jnp.mean(y))
-    fit = 100.0 * (1.0 - jnp.linalg.norm(e) / jnp.where(spread > 0, spread, jnp.nan))
-    return Comparison(pred, rmse, fit, m)
+    return 100.0 * (1.0 - jnp.linalg.norm(y - prediction) / jnp.where(spread > 0, spread, jnp.nan))
