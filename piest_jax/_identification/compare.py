@@ -130,7 +130,10 @@ def compare(model, u, y=None, *, estimate_initial: bool = True, max_steps: int =
 def fit_percent(y, prediction):
     """The fit percentage system identification reports: 100 (1 − ‖y − ŷ‖ / ‖y − mean(y)‖).
 
-    100 is a perfect prediction, 0 one no better than the record's mean; NaN for a constant `y`.
+    **Arguments:** `y`, the measured output (T,); `prediction`, a model's output ŷ (T,).
+
+    **Returns:** a scalar: 100 for a perfect prediction, 0 for one no better than the record's
+    mean, NaN for a constant `y`.
     """
     y, prediction = jnp.asarray(y), jnp.asarray(prediction)
     spread = jnp.linalg.norm(y - jnp.mean(y))
