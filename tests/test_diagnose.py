@@ -7,12 +7,12 @@ import jax
 import numpy as np
 import pytest
 
-from piest_jax._diagnosis import diagnose as _diagnose
-from piest_jax._diagnosis import effects as _effects
-from piest_jax._diagnosis import hidden as _hidden
-from piest_jax._diagnosis import locate as _locate
 from piest_jax._cli import main
 from piest_jax._data.record import DataError, Record
+from piest_jax._diagnosis import diagnose as _diagnose
+from piest_jax._diagnosis import hidden as _hidden
+from piest_jax._diagnosis import locate as _locate
+from piest_jax._diagnosis.effects import EFFECTS
 
 N_SAMPLES = 500
 
@@ -89,7 +89,7 @@ PER_PAIR = 2
 @pytest.fixture(scope="module")
 def confusion():
     key = jax.random.PRNGKey(7)
-    classes = [((), N_FREE)] + [((e,), PER_EFFECT) for e in _effects.EFFECTS] + [(p, PER_PAIR) for p in PAIRS]
+    classes = [((), N_FREE)] + [((e,), PER_EFFECT) for e in EFFECTS] + [(p, PER_PAIR) for p in PAIRS]
     rows = []
     for ci, (cls, n) in enumerate(classes):
         for i in range(n):
@@ -115,7 +115,7 @@ def test_confusion_single_effects(confusion):
     right = [(e, ratio) for e, named, ratio, _ in single if named == [e]]
     assert len(right) >= 0.9 * len(single), [(e, n, f) for e, n, _, f in single if n != [e]]
     assert all(ratio <= 1.5 for _, ratio in right), [(e, r) for e, r in right if r > 1.5]
-    for e in _effects.EFFECTS:  # no effect is missed wholesale
+    for e in EFFECTS:  # no effect is missed wholesale
         assert sum(x == e for x, _ in right) >= PER_EFFECT - 1, (e, single)
 
 

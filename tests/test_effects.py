@@ -9,7 +9,15 @@ from hypothesis import strategies as st
 from scipy import optimize
 
 from piest_jax import play
-from piest_jax._diagnosis import effects as _effects
+from piest_jax._diagnosis import basis as _basis
+from piest_jax._diagnosis import model as _model
+from piest_jax._diagnosis.effects import EFFECT
+from piest_jax._diagnosis.effects import asymmetry as _asymmetry
+from piest_jax._diagnosis.effects import creep as _creep
+from piest_jax._diagnosis.effects import delay as _delay
+from piest_jax._diagnosis.effects import linear_dynamics as _linear_dynamics
+from piest_jax._diagnosis.effects import offset_drift as _offset_drift
+from piest_jax._diagnosis.scaling import Prepared
 
 
 def _loop_plays(g, r, x0):
@@ -28,7 +36,7 @@ def _record(n=400, seed=0, dt=0.01):
     u = 0.8 * np.sin(2 * np.pi * 0.7 * t) * np.minimum(t, 1) + 0.2 * np.sin(2 * np.pi * 2.3 * t)
     y = rng.normal(size=n)
     folds = np.minimum(np.arange(n) * 16 // n, 15) % 4
-    return _effects.Prepared(u, y, t, rate_scale=5.0, period=1 / 0.7, folds=folds)
+    return Prepared(u, y, t, rate_scale=5.0, period=1 / 0.7, folds=folds)
 
 
 @settings(max_examples=25, deadline=None)
@@ -36,20 +44,20 @@ def _record(n=400, seed=0, dt=0.01):
 def test_plays_match_a_loop_and_the_play_operator(seed):
     rng = np.random.default_rng(seed)
     g = np.cumsum(rng.normal(size=60)) * 0.2
-    x0 = rng.uniform(-1, 1, size=(2, _effects.N_PLAYS))
-    out = _effects.plays(g, _effects.THRESHOLDS, x0)
+    x0 = rng.uniform(-1, 1, size=(2, _basis.N_PLAYS))
+    out = _basis.plays(g, _basis.THRESHOLDS, x0)
     for c in range(2):
-        np.testing.assert_allclose(out[c], _loop_plays(g, _effects.THRESHOLDS, x0[c]), atol=1e-14)
-    rt = _effects.THRESHOLDS[None, :] * (1 + rng.uniform(0, 1, size=(60, 1)))
-    np.testing.assert_allclose(_effects.plays(g, rt, x0[:1])[0], _loop_plays(g, rt, x0[0]), atol=1e-14)
-    relaxed = _effects.plays(g, _effects.THRESHOLDS, np.full((1, _effects.N_PLAYS), g[0]))[0]
-    np.testing.assert_allclose(relaxed, np.asarray(play(g, _effects.THRESHOLDS, g[0])), atol=1e-12)
+        np.testing.assert_allclose(out[c], _loop_plays(g, _basis.THRESHOLDS, x0[c]), atol=1e-14)
+    rt = _basis.THRESHOLDS[None, :] * (1 + rng.uniform(0, 1, size=(60, 1)))
+    np.testing.assert_allclose(_basis.plays(g, rt, x0[:1])[0], _loop_plays(g, rt, x0[0]), atol=1e-14)
+    relaxed = _basis.plays(g, _basis.THRESHOLDS, np.full((1, _basis.N_PLAYS), g[0]))[0]
+    np.testing.assert_allclose(relaxed, np.asarray(play(g, _basis.THRESHOLDS, g[0])), atol=1e-12)
 
 
 @pytest.mark.parametrize("u0, a", [(0.0, 0.7), (0.2, -0.5), (-0.3, 1.9)])
 def test_history_states_of_one_excursion(u0, a):
-    r = _effects.THRESHOLDS
-    x = _effects.history_states(u0, (a,))
+    r = _basis.THRESHOLDS
+    x = _basis.history_states(u0, (a,))
     # Up (down) to a leaves max(u0, a - r) (min(u0, a + r)); back at u0 the play is clamped to u0 +- r.
     s = np.sign(a - u0)
     expect = u0 + s * np.minimum(np.maximum(abs(a - u0) - r, 0.0), r)
@@ -62,7 +70,7 @@ def test_delay_is_interpolation(d):
     X = np.column_stack([np.sin(np.arange(50) * 0.3), np.arange(50.0) ** 1.5])
     idx = np.arange(50.0)
     ref = np.column_stack([np.interp(idx - d, idx, X[:, j], left=X[0, j]) for j in range(2)])
-    np.testing.assert_allclose(_effects.delayed(X, d), ref, atol=1e-12)
+    np.testing.assert_allclose(_delay.delayed(X, d), ref, atol=1e-12)
 
 
 def _ode_reference(v, dt, spec, sub=400):
@@ -91,9 +99,9 @@ def _ode_reference(v, dt, spec, sub=400):
 def test_dynamics_match_the_ode(spec):
     dt = 0.01
     v = np.concatenate([np.zeros(5), np.sin(np.arange(40) * 0.4)])
-    got = _effects.dynamics(v[:, None], spec, dt)[:, 0]
+    got = _linear_dynamics.dynamics(v[:, None], spec, dt)[:, 0]
     np.testing.assert_allclose(got, _ode_reference(v, dt, spec), atol=1e-8)
-    step = _effects.dynamics(np.ones((300, 1)) * 2.0, spec, dt)[:, 0]
+    step = _linear_dynamics.dynamics(np.ones((300, 1)) * 2.0, spec, dt)[:, 0]
     np.testing.assert_allclose(step, 2.0, atol=1e-12)  # at rest and unit gain
 
 
@@ -105,7 +113,7 @@ def test_lowpass_matches_a_loop():
     for i in range(30):
         s = lam * s + (1 - lam) * v[i]
         ref[i] = s
-    np.testing.assert_allclose(_effects.lowpass(v, lam), ref, atol=1e-14)
+    np.testing.assert_allclose(_creep.lowpass(v, lam), ref, atol=1e-14)
 
 
 def test_least_squares_keeps_play_weights_positive_and_matches_nnls():
@@ -113,11 +121,11 @@ def test_least_squares_keeps_play_weights_positive_and_matches_nnls():
     p = _record()
     H = p.plain_plays()
     A = np.column_stack([H, np.ones(len(H)), rng.normal(size=len(H))])
-    y = H @ np.where(np.arange(_effects.N_PLAYS) % 3 == 0, 0.5, 0.0) - 0.3 * A[:, -1] + 0.01 * rng.normal(size=len(H))
-    w = _effects._lstsq(A, y)
-    assert np.all(w[: _effects.N_PLAYS] >= 0)
+    y = H @ np.where(np.arange(_basis.N_PLAYS) % 3 == 0, 0.5, 0.0) - 0.3 * A[:, -1] + 0.01 * rng.normal(size=len(H))
+    w = _model.lstsq(A, y)
+    assert np.all(w[: _basis.N_PLAYS] >= 0)
     # Reference: scipy's NNLS with the free columns split into positive and negative parts.
-    k = _effects.N_PLAYS
+    k = _basis.N_PLAYS
     z = optimize.nnls(np.column_stack([A, -A[:, k:]]), y)[0]
     ref = np.concatenate([z[:k], z[k : A.shape[1]] - z[A.shape[1] :]])
     np.testing.assert_allclose(A @ w, A @ ref, atol=1e-4)
@@ -125,15 +133,15 @@ def test_least_squares_keeps_play_weights_positive_and_matches_nnls():
 
 def test_fit_recovers_a_noise_free_delayed_pi():
     p = _record()
-    w_true = np.linspace(1.0, 0.1, _effects.N_PLAYS)
+    w_true = np.linspace(1.0, 0.1, _basis.N_PLAYS)
     cfg = {"delay": 0.023}
-    X = _effects.linear_part(p, cfg)
+    X = _model.linear_part(p, cfg)
     p.y = X[:, :-1] @ w_true + 0.4
-    f = _effects.fit(p, cfg)
+    f = _model.fit(p, cfg)
     np.testing.assert_allclose(f.A @ f.w, p.y, atol=1e-5)
-    np.testing.assert_allclose(_effects.predict(p, cfg, f.w, f.w_v, f.norm), f.A @ f.w, atol=1e-12)
+    np.testing.assert_allclose(_model.predict(p, cfg, f.w, f.w_v, f.norm), f.A @ f.w, atol=1e-12)
     # Without the delay the same data leave a clear misfit.
-    f0 = _effects.fit(p, {})
+    f0 = _model.fit(p, {})
     assert np.sqrt(np.mean((f0.A @ f0.w - p.y) ** 2)) > 1e-3
 
 
@@ -141,11 +149,11 @@ def test_output_polynomial_reaches_the_nonlinear_optimum():
     # y = v + a v^2 + b v^3 with v a PI output: Gauss-Newton steps reach an exact fit, which a
     # fixed-point iteration on the polynomial's columns does not.
     p = _record()
-    v = _effects.plays(p.u, _effects.THRESHOLDS, np.full((1, 16), p.u[0]))[0] @ np.linspace(0.3, 0.02, 16)
+    v = _basis.plays(p.u, _basis.THRESHOLDS, np.full((1, 16), p.u[0]))[0] @ np.linspace(0.3, 0.02, 16)
     vn = (v - 0.5 * (v.max() + v.min())) / (0.5 * np.ptp(v))
     p.y = vn + 0.3 * vn**2 - 0.2 * vn**3
-    f = _effects.fit(p, {"asymmetry": 0.0})
-    pred = _effects.predict(p, {"asymmetry": 0.0}, f.w, f.w_v, f.norm)
+    f = _model.fit(p, {"asymmetry": 0.0})
+    pred = _model.predict(p, {"asymmetry": 0.0}, f.w, f.w_v, f.norm)
     assert np.sqrt(np.mean((pred - p.y) ** 2)) < 1e-4
     np.testing.assert_allclose(f.A @ f.w - f.target, pred - p.y, atol=1e-4)  # linearised = model
 
@@ -153,38 +161,38 @@ def test_output_polynomial_reaches_the_nonlinear_optimum():
 def test_output_side_effects_are_reproduced_by_predict():
     p = _record()
     cfg = {"creep": (0.5, 5.0), "offset_drift": True}
-    p.y = np.tanh(1.5 * _effects.plays(p.u, _effects.THRESHOLDS, np.zeros((1, 16)))[0] @ np.full(16, 0.1))
-    f = _effects.fit(p, cfg)
-    assert f.A.shape[1] == _effects.N_PLAYS + 1 + 2 + _effects.N_DRIFT
-    np.testing.assert_allclose(_effects.predict(p, cfg, f.w, f.w_v, f.norm), f.A @ f.w, atol=1e-12)
+    p.y = np.tanh(1.5 * _basis.plays(p.u, _basis.THRESHOLDS, np.zeros((1, 16)))[0] @ np.full(16, 0.1))
+    f = _model.fit(p, cfg)
+    assert f.A.shape[1] == _basis.N_PLAYS + 1 + 2 + _offset_drift.N_DRIFT
+    np.testing.assert_allclose(_model.predict(p, cfg, f.w, f.w_v, f.norm), f.A @ f.w, atol=1e-12)
     cfg = {"asymmetry": 0.2, **cfg}
-    f = _effects.fit(p, cfg)
-    pos = _effects.positive_mask(cfg, f.A.shape[1])
+    f = _model.fit(p, cfg)
+    pos = _model.positive_mask(cfg, f.A.shape[1])
     # Plays and the two creep modes are sign-constrained; offset, polynomial and drift are free.
-    assert pos.sum() == _effects.N_PLAYS + 2 and pos[_effects.N_PLAYS + 1 + _effects.N_POLY]
+    assert pos.sum() == _basis.N_PLAYS + 2 and pos[_basis.N_PLAYS + 1 + _asymmetry.N_POLY]
     assert np.all(f.w[pos] >= 0)
 
 
 def test_cross_validation_matches_an_explicit_loop():
     p = _record()
     A = np.column_stack([p.plain_plays(), np.ones(len(p.y))])
-    mse, err = _effects.cv_mse(p, A)
+    mse, err = _model.cv_mse(p, A)
     ref = np.empty(len(p.y))
     for k in range(4):
         te = p.folds == k
-        ref[te] = p.y[te] - A[te] @ _effects._lstsq(A[~te], p.y[~te])
+        ref[te] = p.y[te] - A[te] @ _model.lstsq(A[~te], p.y[~te])
     np.testing.assert_allclose(err, ref, atol=1e-9)
     assert mse == pytest.approx(np.mean(ref**2))
 
 
 def test_grids_and_refinements_are_physical():
     p = _record()
-    assert all(d > 0 for d in _effects.grid("delay", p))
-    assert all(q[1] > 0 for q in _effects.grid("linear_dynamics", p))
-    for turns in _effects.grid("initial_state", p):
-        x = _effects.history_states(p.u[0], turns)
-        assert np.all(np.abs(x - p.u[0]) <= _effects.THRESHOLDS + 1e-12)
-    (taus,) = _effects.grid("creep", p)
-    assert len(taus) == _effects.N_CREEP and taus[-1] == pytest.approx(p.t[-1] - p.t[0])
+    assert all(d > 0 for d in EFFECT["delay"].grid(p))
+    assert all(q[1] > 0 for q in EFFECT["linear_dynamics"].grid(p))
+    for turns in EFFECT["initial_state"].grid(p):
+        x = _basis.history_states(p.u[0], turns)
+        assert np.all(np.abs(x - p.u[0]) <= _basis.THRESHOLDS + 1e-12)
+    (taus,) = EFFECT["creep"].grid(p)
+    assert len(taus) == _creep.N_CREEP and taus[-1] == pytest.approx(p.t[-1] - p.t[0])
     q = ("second", 100.0, 0.5)
-    assert all(n[1] > 0 and 0 < n[2] <= 1.5 for n in _effects.neighbours("linear_dynamics", q, 0))
+    assert all(n[1] > 0 and 0 < n[2] <= 1.5 for n in EFFECT["linear_dynamics"].neighbours(q, 0))

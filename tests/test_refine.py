@@ -9,8 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from piest_jax._diagnosis import effects as _effects
+from piest_jax._diagnosis import basis as _basis
+from piest_jax._diagnosis import model as _model
 from piest_jax._diagnosis import refine as _refine
+from piest_jax._diagnosis.effects import asymmetry as _asymmetry
+from piest_jax._diagnosis.scaling import Prepared
 
 T = 1200
 DT = 1e-3
@@ -19,15 +22,15 @@ DT = 1e-3
 def _record(y=None):
     t = np.arange(T) * DT
     u = 0.9 * np.sin(2 * np.pi * 3 * t) * np.exp(-t / 2) + 0.1 * np.sin(2 * np.pi * 11 * t)
-    return _effects.Prepared(u, np.zeros(T) if y is None else y, t, rate_scale=20.0, period=0.33)
+    return Prepared(u, np.zeros(T) if y is None else y, t, rate_scale=20.0, period=0.33)
 
 
 def _coefficients(p, cfg, rng):
-    X = _effects.linear_part(p, cfg)
-    n_out = _effects.output_terms(p, cfg, X[:, 0], (0.0, 1.0)).shape[1]
-    w = np.concatenate([rng.uniform(0.2, 1.0, _effects.N_PLAYS) / 8, [0.1], rng.normal(0, 0.1, n_out)])
+    X = _model.linear_part(p, cfg)
+    n_out = _model.output_terms(p, cfg, X[:, 0], (0.0, 1.0)).shape[1]
+    w = np.concatenate([rng.uniform(0.2, 1.0, _basis.N_PLAYS) / 8, [0.1], rng.normal(0, 0.1, n_out)])
     if "creep" in cfg:
-        k = _effects.N_PLAYS + 1 + (_effects.N_POLY if "asymmetry" in cfg else 0)
+        k = _basis.N_PLAYS + 1 + (_asymmetry.N_POLY if "asymmetry" in cfg else 0)
         w[k : k + len(cfg["creep"])] = np.abs(w[k : k + len(cfg["creep"])])
     return w
 
@@ -52,8 +55,8 @@ def test_model_matches_the_numpy_regressors(cfg):
     p = _record()
     w = _coefficients(p, cfg, np.random.default_rng(len(cfg)))
     norm = (0.05, 0.7)
-    # With the creep driven by the current coefficients, `_effects.predict` is the exact model.
-    ref = _effects.predict(p, cfg, w, w, norm)
+    # With the creep driven by the current coefficients, `_model.predict` is the exact model.
+    ref = _model.predict(p, cfg, w, w, norm)
     data, _, _ = _refine.data_of(p, norm, pad=False)
     out = _refine.model(_refine.initial_params(cfg, w), _refine.structure(cfg), data)
     np.testing.assert_allclose(np.asarray(out), ref, rtol=0, atol=1e-12)
@@ -68,7 +71,7 @@ def test_transferable_model_drops_history_and_drift():
     w = _coefficients(p, cfg, np.random.default_rng(3))
     data, _, _ = _refine.data_of(p, (0.0, 1.0), pad=False)
     out = _refine.model(_refine.initial_params(cfg, w), _refine.structure(cfg), data, transferable_only=True)
-    plain = _effects.predict(p, {}, w[: _effects.N_PLAYS + 1], w, (0.0, 1.0))
+    plain = _model.predict(p, {}, w[: _basis.N_PLAYS + 1], w, (0.0, 1.0))
     np.testing.assert_allclose(np.asarray(out), plain, atol=1e-12)
 
 
@@ -76,7 +79,7 @@ def test_gradient_matches_finite_differences():
     cfg = {"delay": 0.0037, "linear_dynamics": ("second", 300.0, 0.3), "rate_dependence": ("scale", 0.5, 1.0)}
     p = _record()
     w = _coefficients(p, cfg, np.random.default_rng(5))
-    y = _effects.predict(p, cfg, w, w, (0.0, 1.0)) + 0.01 * np.sin(np.arange(T))
+    y = _model.predict(p, cfg, w, w, (0.0, 1.0)) + 0.01 * np.sin(np.arange(T))
     st = _refine.structure(cfg)
     data, yy, mask = _refine.data_of(_record(y), (0.0, 1.0))
     theta = _refine.initial_params({**cfg, "delay": 0.0031}, w)
@@ -109,8 +112,8 @@ def test_gradient_matches_finite_differences():
 def test_refinement_recovers_parameters_off_the_grid(true, start):
     p0 = _record()
     w = _coefficients(p0, true, np.random.default_rng(11))
-    p = _record(_effects.predict(p0, true, w, w, (0.0, 1.0)))
-    f = _effects.fit(p, start)
+    p = _record(_model.predict(p0, true, w, w, (0.0, 1.0)))
+    f = _model.fit(p, start)
     # Noise-free data: stop on the error's own scale, not on a measured record's noise level.
     r = _refine.refine(p, start, f.w, f.norm, rtol=1e-10, atol=1e-16, max_steps=300)
     assert r.accepted and r.result == "successful", r
@@ -124,6 +127,6 @@ def test_refinement_recovers_parameters_off_the_grid(true, start):
 
 def test_unknown_solver_is_refused():
     p = _record(np.sin(np.arange(T) * 0.01))
-    f = _effects.fit(p, {})
+    f = _model.fit(p, {})
     with pytest.raises(ValueError, match="unknown solver 'newton'"):
         _refine.refine(p, {}, f.w, f.norm, solver="newton")

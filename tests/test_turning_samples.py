@@ -6,14 +6,13 @@ samples exactly, whatever the input, thresholds, initial states and step.
 """
 
 import numpy as np
+import reference as ref
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from piest_jax._data.record import Record
-from piest_jax._diagnosis import effects as _effects
+from piest_jax._diagnosis import basis as _basis
 from piest_jax._diagnosis.scaling import prepared, scaling_of
-
-import reference as ref
 
 
 @settings(max_examples=200, deadline=None)
@@ -32,14 +31,14 @@ def test_plays_on_turning_samples_equal_the_full_rate_plays(seed, n, step, level
     r = np.sort(rng.uniform(0, 0.6 * max(np.ptp(u), 1.0), 5))
     r[0] = 0.0
     x0 = u[0] + rng.uniform(-1, 1, 5) * r
-    index, keep = _effects.turning_samples(u, step)
+    index, keep = _basis.turning_samples(u, step)
     assert np.all(np.diff(index) > 0) and index[0] == 0
     full = ref.play(u, r, x0)
     kept = np.arange(0, ((n - 1) // step) * step + 1, step)
     assert np.array_equal(index[keep], kept)
     reduced = ref.play(u[index], r, x0)[keep]
     assert np.array_equal(reduced, full[kept])
-    assert np.array_equal(_effects.plays(u[index], r, x0[None], keep)[0], full[kept])
+    assert np.array_equal(_basis.plays(u[index], r, x0[None], keep)[0], full[kept])
 
 
 def test_a_subsampled_record_keeps_its_peaks():
@@ -52,9 +51,9 @@ def test_a_subsampled_record_keeps_its_peaks():
     sc = scaling_of(rec)
     p = prepared(rec, sc, step=500)
     full = prepared(rec, sc)
-    want = _effects.plays(full.u, _effects.THRESHOLDS, np.full((1, _effects.N_PLAYS), full.u[0]))[0][::500]
+    want = _basis.plays(full.u, _basis.THRESHOLDS, np.full((1, _basis.N_PLAYS), full.u[0]))[0][::500]
     assert np.allclose(p.plain_plays(), want, rtol=0, atol=1e-12)
-    naive = _effects.plays(p.u, _effects.THRESHOLDS, np.full((1, _effects.N_PLAYS), p.u[0]))[0]
+    naive = _basis.plays(p.u, _basis.THRESHOLDS, np.full((1, _basis.N_PLAYS), p.u[0]))[0]
     assert np.max(np.abs(naive - want)) > 1e-3
     # Bounded work: a few suffix extrema per stretch, not the full rate.
     assert len(p.play_u) < 20 * len(p.u)

@@ -7,15 +7,14 @@ built by plain loops with known initial conditions.
 
 import numpy as np
 import pytest
+import reference as ref
 
 import piest_jax as pj
-
 from piest_jax._data.record import Record
+from piest_jax._diagnosis import basis as _basis
 from piest_jax._diagnosis import diagnose as _diagnose
-from piest_jax._diagnosis import effects as _effects
+from piest_jax._diagnosis.effects import EFFECT
 from piest_jax._diagnosis.scaling import prepared, scaling_of
-
-import reference as ref
 
 
 def _record(n=1500, seed=0):
@@ -27,7 +26,7 @@ def _record(n=1500, seed=0):
 
 def _model(cfg, seed=1):
     rng = np.random.default_rng(seed)
-    w = np.concatenate([rng.uniform(0.05, 0.3, _effects.N_PLAYS), [0.1], rng.uniform(0.1, 0.3, len(cfg.get("creep", ())))])
+    w = np.concatenate([rng.uniform(0.05, 0.3, _basis.N_PLAYS), [0.1], rng.uniform(0.1, 0.3, len(cfg.get("creep", ())))])
     return dict(cfg=cfg, coef=w, coef_v=w, norm=(0.0, 1.0))
 
 
@@ -40,18 +39,18 @@ def test_offset_and_initial_states_are_recovered(taus):
     cfg = {"creep": taus} if taus else {}
     model = _model(cfg)
     w = model["coef"]
-    history = _effects.grid("initial_state", p)[7]
+    history = EFFECT["initial_state"].grid(p)[7]
     # The truth, from plain loops: plays from the history's states, creep modes from states
     # away from rest, and an offset.
-    x0 = _effects.history_states(p.u[0], history)
-    v = ref.play(p.u, _effects.THRESHOLDS, x0) @ w[: _effects.N_PLAYS] + w[_effects.N_PLAYS]
+    x0 = _basis.history_states(p.u[0], history)
+    v = ref.play(p.u, _basis.THRESHOLDS, x0) @ w[: _basis.N_PLAYS] + w[_basis.N_PLAYS]
     y = v.copy()
     delta = np.array([0.3, -0.2])[: len(taus)]
     for k, tau in enumerate(taus):
         lam, z = np.exp(-p.dt / tau), v[0] + delta[k]
         for i in range(len(v)):
             z = lam * z + (1 - lam) * v[i]
-            y[i] += w[_effects.N_PLAYS + 1 + k] * (z - v[i])
+            y[i] += w[_basis.N_PLAYS + 1 + k] * (z - v[i])
     shift = 0.37
     truth = Record(other.t, other.u, (y + shift) * sc.y_half + sc.y_mid)
     _, raw = _diagnose.evaluate(truth, sc, model, transferable_only=True)
@@ -61,7 +60,7 @@ def test_offset_and_initial_states_are_recovered(taus):
     assert np.allclose(pred, truth.y, atol=1e-8 * np.std(truth.y))
     assert est["offset"] == pytest.approx(shift * sc.y_half, rel=1e-6)
     assert np.allclose(est["history_turning_points"], np.asarray(history) * sc.u_half + sc.u_mid)
-    c = w[_effects.N_PLAYS + 1 :]
+    c = w[_basis.N_PLAYS + 1 :]
     assert np.allclose(est["creep_states"], c * delta * sc.y_half, rtol=1e-6)
 
 
@@ -115,12 +114,12 @@ def test_refined_and_grid_models_agree_from_a_history(cfg):
     sc = scaling_of(ident)
     model = _model(cfg)
     if "asymmetry" in cfg:
-        model["coef"] = np.insert(model["coef"], _effects.N_PLAYS + 1, [0.05, -0.02, 0.01, 0.0])
+        model["coef"] = np.insert(model["coef"], _basis.N_PLAYS + 1, [0.05, -0.02, 0.01, 0.0])
         model["coef_v"] = model["coef"]
     # Positive creep coefficients, so the refined model's softplus stands for them exactly.
     theta = _refine.initial_params(cfg, model["coef"])
     refined = _refine.Refined(theta, _refine.structure(cfg), cfg, "successful", 0, 0.0, 0.0, True)
-    history = _effects.grid("initial_state", prepared(other, sc))[20]
+    history = EFFECT["initial_state"].grid(prepared(other, sc))[20]
     a, _ = _diagnose.evaluate(other, sc, model, history=history)
     b, _ = _diagnose.evaluate(other, sc, dict(model, refined=refined), history=history)
     assert np.allclose(a, b, rtol=1e-5, atol=1e-5 * np.std(other.y))

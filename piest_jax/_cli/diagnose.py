@@ -2,19 +2,18 @@
 
 import numpy as np
 
-from . import output as _io
 from .._data.record import load_record
+from .._diagnosis.effects import EFFECT, EFFECTS, RECORD_SPECIFIC
 from .._report import json_text
-from .._diagnosis.effects import EFFECTS
+from . import output as _io
 from ._common import CLIError, add_output_options
 
 NAME = "diagnose"
 DESCRIPTION = """\
 Fit a plain PI model (16 plays on a threshold grid, positive weights, output offset, relaxed
 initial states) to DATA.csv (columns t, u, y), locate where the residual is structured, then try
-each effect (initial_state, delay, linear_dynamics, rate_dependence, creep, asymmetry,
-offset_drift) and name it only when it wins clearly on held-out blocks against the noise floor;
-repeat on what remains. Both the plain and the final model are then refined jointly (weights and
+each effect (listed below) and name it only when it wins clearly on held-out blocks against the
+noise floor; repeat on what remains. Both the plain and the final model are then refined jointly (weights and
 every effect's parameters) by optimistix least squares (--solver). A progress bar over the
 candidates shows on a terminal (not with --quiet or --json). With --json it prints the report
 (the text of report.json) instead of the paths. Writes
@@ -23,7 +22,7 @@ candidates shows on a terminal (not with --quiet or --json). With --json it prin
                    effects), refinement (solver result, steps, RMSE before/after,
                    which fit was kept), rounds, where (located disagreements),
                    transferable_effects (functions of the input) and
-                   record_specific_effects (initial_state, offset_drift: tied to
+                   record_specific_effects ({record_specific}: tied to
                    this record), and with --validate: validation {baseline_rmse,
                    final_rmse} (raw: the models from rest, transferable effects
                    only), {baseline,final}_rmse_ic (offset, play and creep initial
@@ -31,7 +30,14 @@ candidates shows on a terminal (not with --quiet or --json). With --json it prin
   DIR/report.png   residuals and loops, before and after
   DIR/report.md    a short written report
 
-example:  piest diagnose run1.csv --validate run2.csv --out diag"""
+effects:
+{effects}
+
+example:  piest diagnose run1.csv --validate run2.csv --out diag""".replace(
+    "{record_specific}", ", ".join(RECORD_SPECIFIC)).replace(
+    "{effects}", "\n".join(f"  {e.name:<16} {e.summary}" + (" (record-specific)" if e.record_specific else "")
+                      for e in EFFECT.values()),
+)
 
 OUTPUTS = ("report.json", "report.png", "report.md")
 
@@ -42,7 +48,7 @@ def add_arguments(p):
     p.add_argument("--max-effects", type=int, default=3, help="name at most this many (default 3)")
     p.add_argument(
         "--candidates", metavar="NAMES", default=",".join(EFFECTS),
-        help="comma-separated effects to try (default: all seven)",
+        help=f"comma-separated effects to try (default: all {len(EFFECTS)})",
     )
     p.add_argument(
         "--solver", choices=("lm", "gn", "bfgs", "none"), default="lm",

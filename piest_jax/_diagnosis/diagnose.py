@@ -1,13 +1,13 @@
 """Name the effects a plain PI model misses: fit, score candidates on held-out blocks, repeat.
 
 The loop: fit the base PI model (offset, relaxed initial states); for every effect not yet in the
-model, add it and fit it over its grid of nonlinear parameters (`_effects`), and measure the
+model, add it and fit it over its grid of nonlinear parameters (`model`, `effects/`), and measure the
 error on held-out blocks by blocked cross-validation (contiguous blocks, folds interleaved, the
 model running through every block so states carry across). The best candidate is named only if
 its held-out gain, less a charge per parameter, is large against the noise floor and a real share
 of the remaining error; then the loop repeats on what remains, and effects that a later one made
 redundant are dropped again. Long records are sub-sampled for the search, with the plays run on
-the kept samples plus the turning samples between them (`_effects.turning_samples`), so the play
+the kept samples plus the turning samples between them (`basis.turning_samples`), so the play
 columns are the full-rate ones at the kept samples and no peak is lost; the model's time
 constants and delay are physical, so the chosen model is then fitted and evaluated at full rate.
 Finally the plain and the chosen model are refined jointly, every parameter at once, by optimistix
@@ -20,13 +20,14 @@ import math
 
 import numpy as np
 
-from . import effects as _effects
-from . import locate as _locate
-from . import refine as _refine
 from .._data.record import Record
 from .._identification.compare import fit_percent
-from .effects import EFFECTS
 from .._progress import progress
+from . import locate as _locate
+from . import model as _model
+from . import refine as _refine
+from .effect import AbstractEffect
+from .effects import EFFECT, EFFECTS, chain, check_names
 from .scaling import Scaling as Scaling
 from .scaling import check_record as check_record
 from .scaling import noise_std as noise_std
@@ -50,20 +51,17 @@ STUCK_NOISE = 2.0
 
 def _fit_many(p, cfg, effect, values):
     """Each grid value of `effect` added to `cfg`: (held-out MSE, value) of the best one."""
-    play_side = effect in ("initial_state", "rate_dependence", "asymmetry")
-    H = None if play_side else _effects.play_columns(p, cfg)
-    if effect == "initial_state":
-        # All histories at once: one pass of the plays with a batch of initial states.
-        g, r = _effects.play_inputs(p, cfg)
-        Hs = _effects.plays(g, r, np.stack([_effects.history_states(g[0], tr) for tr in values]), p.keep)
+    e = EFFECT[effect]
+    H = None if e.play_side else _model.play_columns(p, cfg)
+    Hs = e.batch_play_columns(p, *_model.play_inputs(p, cfg), values) if e.play_side else None
 
     def sse(q, i):
         c = {**cfg, effect: q}
-        f = _effects.fit(p, c, X=_effects.linear_part(p, c, Hs[i] if effect == "initial_state" else H))
+        f = _model.fit(p, c, X=_model.linear_part(p, c, Hs[i] if Hs is not None and i is not None else H))
         return float(np.sum((f.A @ f.w - f.target) ** 2)), f
 
     def cv(b):
-        return _effects.cv_mse(p, b[1].A, {**cfg, effect: b[2]}, b[1].target)[0]
+        return _model.cv_mse(p, b[1].A, {**cfg, effect: b[2]}, b[1].target)[0]
 
     # The grid is searched by the fitting error, and the few best values are scored on held-out
     # blocks: a value that fits better by bending where the data are sparse (a start-up
@@ -76,7 +74,7 @@ def _fit_many(p, cfg, effect, values):
         # the chosen model should fit as well as the effect's form allows, or the gap left
         # would be taken for a second effect.
         for _ in range(4):
-            near = [(*sse(q, None), q) for q in _effects.neighbours(effect, best[2], level)]
+            near = [(*sse(q, None), q) for q in e.neighbours(best[2], level)]
             new = min([best, *near], key=lambda b: b[0])
             if new[2] is best[2]:
                 break
@@ -89,8 +87,8 @@ def _fit_many(p, cfg, effect, values):
 
 
 def _cv(p, cfg):
-    f = _effects.fit(p, cfg)
-    return _effects.cv_mse(p, f.A, cfg, f.target)[0]
+    f = _model.fit(p, cfg)
+    return _model.cv_mse(p, f.A, cfg, f.target)[0]
 
 
 def _significant(gain, n_params, cur_mse, sigma2, n):
@@ -107,9 +105,9 @@ def _prefer_input_driven(scores, best, cur, sigma2, n):
     the held-out blocks then include stretches where the output moves while the input does not
     (a pause, a steady periodic drive), which no function of the input explains.
     """
-    if best != "offset_drift":
+    if not EFFECT[best].time_driven:
         return best
-    alts = [c for c, v in scores.items() if c not in _effects.RECORD_SPECIFIC and v["significant"]]
+    alts = [c for c, v in scores.items() if not EFFECT[c].record_specific and v["significant"]]
     if not alts:
         return best
     alt = max(alts, key=lambda c: scores[c]["score"])
@@ -136,7 +134,7 @@ def _revisit(p, cfg, named, candidates, cur):
             for c in candidates if sweep == 0 else [e]:
                 if c in rest:
                     continue
-                mse, q = _fit_many(p, rest, c, _effects.grid(c, p))
+                mse, q = _fit_many(p, rest, c, EFFECT[c].grid(p))
                 if mse < best[0]:
                     best = (mse, c, q)
             named = [best[1] if x == e else x for x in named]
@@ -158,7 +156,7 @@ def _pair_restart(p, first, cur, sigma2, n):
     best = None
     for a, b in itertools.combinations(top, 2):
         cfg = {a: first[a]["value"]}
-        mse, q = _fit_many(p, cfg, b, _effects.grid(b, p))
+        mse, q = _fit_many(p, cfg, b, EFFECT[b].grid(p))
         cfg, named, mse = _revisit(p, {**cfg, b: q}, [a, b], [a, b], mse)
         if best is None or mse < best[2]:
             best = (cfg, named, mse)
@@ -178,7 +176,7 @@ def _prune(p, cfg, named, sigma2):
         for e in named:
             rest = {k: v for k, v in cfg.items() if k != e}
             loss = _cv(p, rest) - cur
-            if not _significant(loss, _effects.N_PARAMS[e], cur, sigma2, len(p.y))[1]:
+            if not _significant(loss, EFFECT[e].n_params, cur, sigma2, len(p.y))[1]:
                 cfg, named = rest, [x for x in named if x != e]
                 pruned.append(e)
                 break
@@ -207,9 +205,7 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     `noise_std` and the held-out RMSEs (in the data's units).
     """
     candidates = list(candidates)
-    for c in candidates:
-        if c not in EFFECTS:
-            raise ValueError(f"unknown effect {c!r}; choose from {EFFECTS}")
+    check_names(candidates)
     if solver is not None and solver not in _refine.SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {_refine.SOLVERS} or None")
     check_record(rec)
@@ -226,8 +222,8 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
         scores = {}
         todo = [c for c in candidates if c not in named]
         for c in progress(todo, desc=f"diagnose, round {len(rounds) + 1}", quiet=quiet):
-            mse, q = _fit_many(p, cfg, c, _effects.grid(c, p))
-            score, ok = _significant(cur - mse, _effects.N_PARAMS[c], cur, sigma2, n)
+            mse, q = _fit_many(p, cfg, c, EFFECT[c].grid(p))
+            score, ok = _significant(cur - mse, EFFECT[c].n_params, cur, sigma2, n)
             scores[c] = dict(heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score),
                              significant=ok, value=q, mse=mse)
         if not scores:
@@ -238,7 +234,7 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
             current_heldout_rmse=float(np.sqrt(cur)) * sc.y_half,
             candidates={k: {kk: v[kk] for kk in ("heldout_rmse", "score", "significant")}
                         for k, v in scores.items()},
-            best=best, named=ok, parameters=_describe(best, scores[best]["value"]),
+            best=best, named=ok, parameters=EFFECT[best].describe(scores[best]["value"]),
         ))
         if len(rounds) == 1:
             first = scores
@@ -267,7 +263,7 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     thin = prepared(rec, sc, step=int(math.ceil(len(full.y) / REFINE_SAMPLES))) if refit else p
     models = {}
     for label, c in (("model_base", {}), ("model_final", cfg)):
-        f = _effects.fit(full, c)
+        f = _model.fit(full, c)
         # Both models get the same joint refinement, so the comparison stays fair.
         models[label] = (dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None
                          else _refined(full, thin, c, f, solver))
@@ -292,13 +288,13 @@ def _refined(full, thin, cfg, f, solver):
         return dict(cfg=c, coef=g.w, coef_v=g.w_v, norm=g.norm)
 
     ref = _refine.refine(thin, cfg, f.w, f.norm, solver=solver)
-    options = [("grid", mse(_effects.predict(full, cfg, f.w, f.w_v, f.norm)), vp_model(cfg, f))]
+    options = [("grid", mse(_model.predict(full, cfg, f.w, f.w_v, f.norm)), vp_model(cfg, f))]
     if ref.accepted:
         refined = dict(vp_model(cfg, f), cfg=ref.cfg, refined=ref)
         options.append(("solver", mse(_refine.predict(ref, full, f.norm)), refined))
         if ref.cfg != cfg:
-            g = _effects.fit(full, ref.cfg)
-            pred = _effects.predict(full, ref.cfg, g.w, g.w_v, g.norm)
+            g = _model.fit(full, ref.cfg)
+            pred = _model.predict(full, ref.cfg, g.w, g.w_v, g.norm)
             options.append(("solver_then_weights", mse(pred), vp_model(ref.cfg, g)))
     kept, best, model = min(options, key=lambda o: o[1] if np.isfinite(o[1]) else np.inf)
     model["refinement"] = dict(result=ref.result, steps=ref.steps, kept=kept,
@@ -310,25 +306,6 @@ def _refinement(model, sc):
     """How the joint optimistix refinement of a model went (RMSEs in the data's units)."""
     r = model["refinement"]
     return dict(r, rmse_start=r["rmse_start"] * sc.y_half, rmse=r["rmse"] * sc.y_half)
-
-
-def _describe(effect, q):
-    """The chosen grid parameters of an effect in words (JSON-ready)."""
-    if effect == "delay":
-        return {"delay_s": float(q)}
-    if effect == "linear_dynamics":
-        if q[0] == "first":
-            return {"order": 1, "tau_s": float(q[1])}
-        return {"order": 2, "omega_rad_s": float(q[1]), "zeta": float(q[2])}
-    if effect == "rate_dependence":
-        return {"form": "r (1 + k rho^p)" if q[0] == "scale" else "r + k rho^p", "k": q[1], "p": q[2]}
-    if effect == "initial_state":
-        return {"history_turning_points_normalised_input": [float(a) for a in q]}
-    if effect == "asymmetry":
-        return {"input_envelope_b": float(q)}
-    if effect == "creep":
-        return {"time_constants_s": [float(v) for v in q]}
-    return {}
 
 
 def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False, history=None):
@@ -354,20 +331,33 @@ def _predict(p, model, transferable_only, history):
     if model.get("refined") is not None:
         return _refine.predict(model["refined"], p, model["norm"], transferable_only=transferable_only,
                                history=history)
-    cfg, w = dict(model["cfg"]), np.asarray(model["coef"])
+    cfg, w, w_v = dict(model["cfg"]), np.asarray(model["coef"]), np.asarray(model["coef_v"])
     if transferable_only or history is not None:
-        cfg.pop("initial_state", None)
-        if cfg.pop("offset_drift", None) is not None:
-            w = w[: len(w) - _effects.N_DRIFT]
+        cfg, w, w_v = _model.without(cfg, [n for n in cfg if EFFECT[n].record_specific], w, w_v)
     if history is not None:
         cfg["initial_state"] = tuple(history)
-    return _effects.predict(p, cfg, w, np.asarray(model["coef_v"]), model["norm"])
+    return _model.predict(p, cfg, w, w_v, model["norm"])
 
 
-def _creep_taus(model):
-    if model.get("refined") is not None:
-        return np.asarray(model["refined"].cfg.get("creep", ()), float)
-    return np.asarray(model["cfg"].get("creep", ()), float)
+def _transients(model, p):
+    """What the transferable effects' own states before a record add: {effect: (T, k) columns}."""
+    cfg = model["refined"].cfg if model.get("refined") is not None else model["cfg"]
+    out = {}
+    for e in chain(cfg):
+        cols = None if e.record_specific else e.transients(cfg[e.name], p)
+        if cols is not None:
+            out[e.name] = cols
+    return out
+
+
+def _states(transients, coef):
+    """The estimated states of each effect with transients, `<effect>_states` (empty when absent)."""
+    out = {f"{e.name}_states": [] for e in EFFECT.values() if type(e).transients is not AbstractEffect.transients}
+    k = 0
+    for name, cols in transients.items():
+        out[f"{name}_states"] = [float(c) for c in coef[k : k + cols.shape[1]]]
+        k += cols.shape[1]
+    return out
 
 
 def evaluate_ic(rec: Record, sc: Scaling, model):
@@ -376,22 +366,23 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
     As system identification tools compare a model with data (MATLAB's `compare`): the model
     is fixed, and only what no model of the input can know is estimated on the record: the
     output offset (a sensor zero that moved between runs), the plays' initial states and the
-    creep modes' initial states. The plays' states are those an input history leaves (the
-    `initial_state` effect's grid of histories, so they stay reachable); a creep mode starting
-    away from rest adds a decaying exponential lam_k^t, so its state and the offset enter
+    states of the effects with their own memory (creep's modes). The plays' states are those an
+    input history leaves (the `initial_state` effect's grid of histories, so they stay
+    reachable); a state of an effect's own adds a known transient (a creep mode starting away
+    from rest adds a decaying exponential lam_k^t), so those states and the offset enter
     linearly and are fitted by least squares for each history. Drift over time is not used.
 
     **Arguments:** as `evaluate`.
 
     **Returns:** `(prediction, rmse, estimated)` with `estimated` a dict: `offset`, the history's
-    turning points in the record's input units (empty for relaxed plays) and `creep_states`.
+    turning points in the record's input units (empty for relaxed plays) and `<effect>_states`
+    for every effect with transients (`creep_states`).
     """
     p = prepared(rec, sc)
-    lam = np.exp(-p.dt / _creep_taus(model))
-    k = np.arange(len(rec.y))[:, None]
-    C = np.column_stack([np.ones(len(rec.y)), lam[None, :] ** (k + 1)])
+    transients = _transients(model, p)
+    C = np.column_stack([np.ones(len(rec.y)), *transients.values()])
     best = None
-    for history in [None, *_effects.grid("initial_state", p)]:
+    for history in [None, *EFFECT["initial_state"].grid(p)]:
         pred = _predict(p, model, True, history) * sc.y_half + sc.y_mid
         coef = np.linalg.lstsq(C, rec.y - pred, rcond=None)[0]
         full = pred + C @ coef
@@ -399,7 +390,7 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
         if best is None or rmse < best[1]:
             turns = [] if history is None else [float(a) * sc.u_half + sc.u_mid for a in history]
             best = (full, rmse, dict(offset=float(coef[0]), history_turning_points=turns,
-                                     creep_states=[float(c) for c in coef[1:]]))
+                                     **_states(transients, coef[1:])))
     return best
 
 
@@ -429,13 +420,13 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
     first = s["rounds"][0]["candidates"] if s["rounds"] else {}
     out = dict(
         effects=named,
-        transferable_effects=[e for e in named if e not in _effects.RECORD_SPECIFIC],
-        record_specific_effects=[e for e in named if e in _effects.RECORD_SPECIFIC],
+        transferable_effects=[e for e in named if not EFFECT[e].record_specific],
+        record_specific_effects=[e for e in named if EFFECT[e].record_specific],
         baseline_rmse=rmse_b,
         final_rmse=rmse_f,
         noise_std_estimate=s["noise_std"],
         candidates={k: dict(v) for k, v in first.items()},
-        parameters={e: _describe(e, s["model_final"]["cfg"][e]) for e in named},
+        parameters={e: EFFECT[e].describe(s["model_final"]["cfg"][e]) for e in named},
         refinement={k: _refinement(s[k], sc) for k in ("model_base", "model_final") if "refinement" in s[k]},
         rounds=s["rounds"],
         pruned=s["pruned"],
@@ -467,7 +458,7 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
             # between the two runs is no failure of either model.
             baseline_rmse_offset_removed=float(np.std(validation.y - vb)),
             final_rmse_offset_removed=float(np.std(validation.y - vf)),
-            effects_used=[e for e in named if e not in _effects.RECORD_SPECIFIC],
+            effects_used=[e for e in named if not EFFECT[e].record_specific],
         )
         arrays.update(val_t=validation.t, val_u=validation.u, val_y=validation.y, val_base=vb, val_final=vf)
     out["_arrays"] = arrays

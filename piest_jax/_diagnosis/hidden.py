@@ -7,11 +7,15 @@ characteristic, delay applied to the input by interpolation, drift as a ramp, a 
 exponential or a slow oscillation). Inputs start at rest; noise is white plus sensor quantisation.
 """
 
+import types
+
 import jax
 import numpy as np
 
 from .._data.record import Record
-from .effects import EFFECTS, N_PLAYS, THRESHOLDS, _lstsq, plays
+from .basis import N_PLAYS, THRESHOLDS, plays
+from .effects import chain, check_names
+from .model import lstsq
 
 
 def _rng(key):
@@ -40,38 +44,8 @@ def _input(rng, n, dt):
 
 
 def _pi(u, r, w, x0, rt=None):
-    x = np.array(x0, float)
-    out = np.empty((len(u), len(r)))
-    for i, ui in enumerate(u):
-        ri = r if rt is None else rt[i]
-        x = np.maximum(ui - ri, np.minimum(ui + ri, x))
-        out[i] = x
-    return out @ w
-
-
-def _lowpass(v, a):
-    out = np.empty_like(v)
-    s = v[0]
-    for i, vi in enumerate(v):
-        s = a * s + (1 - a) * vi
-        out[i] = s
-    return out
-
-
-def _second_order(v, wn, zeta, dt):
-    sub = max(int(np.ceil(wn * dt / 0.05)), 1)
-    h = dt / sub
-    x, xd = v[0], 0.0
-    out = np.empty_like(v)
-    prev = v[0]
-    for i, vi in enumerate(v):
-        for k in range(sub):  # semi-implicit Euler on a fine grid, input interpolated linearly
-            vk = prev + (k + 1) / sub * (vi - prev)
-            xd += h * (wn**2 * (vk - x) - 2 * zeta * wn * xd)
-            x += h * xd
-        out[i] = x
-        prev = vi
-    return out
+    """The PI operator's output: the plays (thresholds r, or time-varying rt) weighted by w."""
+    return np.ascontiguousarray(plays(u, r if rt is None else rt, np.asarray(x0, float)[None])[0]) @ w
 
 
 def generate(effects=(), *, key, n_samples=2000, noise=None):
@@ -88,9 +62,7 @@ def generate(effects=(), *, key, n_samples=2000, noise=None):
     **Returns:** `(record, truth)`: a `Record` and a dict with the effects, their drawn forms and
     parameters, and `noise_std` (the true noise std in the record's units).
     """
-    for e in effects:
-        if e not in EFFECTS:
-            raise ValueError(f"unknown effect {e!r}; choose from {EFFECTS}")
+    check_names(effects)
     rng = _rng(key)
     dt = 1.0 / rng.choice([200.0, 500.0, 1000.0])
     t, u, f0 = _input(rng, n_samples, dt)
@@ -100,103 +72,29 @@ def generate(effects=(), *, key, n_samples=2000, noise=None):
     w = rng.uniform(0.2, 1.0, n_true) * np.exp(-rng.uniform(0, 2) * np.arange(n_true) / n_true)
     w[0] += rng.uniform(0.3, 1.0)
     w *= rng.uniform(0.5, 5.0) / w.sum()
-    x0 = np.zeros(n_true)
     truth = {"effects": list(effects), "forms": {}}
-    form = truth["forms"]
-    span0 = np.ptp(_pi(u, r, w, x0))
-
+    # What the effects' forms may read: the record's time axis, input and plain PI operator.
+    ctx = types.SimpleNamespace(t=t, u=u, dt=dt, f0=f0, amp=amp, r=r,
+                                span0=np.ptp(_pi(u, r, w, np.zeros(n_true))))
     effect_seed = int(rng.integers(2**31))
 
     def simulate(active):
         # The effects' parameters are drawn the same way whichever are active, so a pair's
         # record and each of its single-effect parts share them.
         prng = np.random.default_rng(effect_seed)
-        form.clear()
-        x0, rt, uu = np.zeros(n_true), None, u
-        if "initial_state" in effects:
-            # Memory of an earlier excursion beyond what this record reaches first.
-            top = prng.choice([-1, 1]) * amp * prng.uniform(0.9, 1.3)
-            pre = np.concatenate([np.linspace(0, top, 50), np.linspace(top, 0, 50)])
-            if "initial_state" in active:
-                x0 = _pi_states(pre, r)
-            form["initial_state"] = "states left by an earlier excursion"
-        if "delay" in effects:
-            d = prng.uniform(1.5, 8.0) * dt
-            if "delay" in active:
-                uu = np.interp(t - d, t, u, left=u[0])
-            form["delay"] = f"input delayed by {d / dt:.2f} samples"
-        if "rate_dependence" in effects:
-            rate = np.abs(np.gradient(u, t))
-            rate = rate / np.percentile(rate, 95)
-            b = prng.uniform(0.5, 1.2)
-            if prng.random() < 0.5:
-                rt_ = r[None, :] * (1 + b * rate[:, None])
-                form["rate_dependence"] = "thresholds proportional to 1 + b|du/dt|"
-            else:
-                rt_ = r[None, :] + b * 0.15 * amp * np.sqrt(rate)[:, None]
-                form["rate_dependence"] = "thresholds grow with sqrt|du/dt|"
-            if "rate_dependence" in active:
-                rt = rt_
-        g = uu
-        asym_form = None
-        if "asymmetry" in effects:
-            asym_form = str(prng.choice(["saturation", "quadratic", "envelope", "exponential"]))
-            form["asymmetry"] = asym_form
-            k_asym = prng.uniform(0.25, 0.5) * prng.choice([-1, 1])
-            if asym_form == "envelope" and "asymmetry" in active:
-                g = uu + k_asym * uu**2 / amp
-            if "asymmetry" not in active:
-                asym_form = None
-        v = _pi(g, r, w, x0, rt)
-        if "linear_dynamics" in effects:
-            wn = 2 * np.pi * f0 * prng.uniform(3, 8)
-            zeta = prng.uniform(0.3, 0.9)
-            if prng.random() < 0.5:
-                if "linear_dynamics" in active:
-                    v = _lowpass(v, np.exp(-dt * wn))
-                form["linear_dynamics"] = f"first order, tau = {1 / wn:.3g} s"
-            else:
-                if "linear_dynamics" in active:
-                    v = _second_order(v, wn, zeta, dt)
-                form["linear_dynamics"] = f"second order, wn = {wn:.3g} rad/s, zeta = {zeta:.2f}"
-        if asym_form is not None and asym_form != "envelope":
-            m = 0.5 * (v.max() + v.min())
-            h = 0.5 * np.ptp(v)
-            z = (v - m) / h
-            if asym_form == "saturation":
-                k = 0.8 + 1.4 * abs(k_asym)
-                z = np.tanh(k * z) / np.tanh(k)
-            elif asym_form == "quadratic":
-                z = z + 0.5 * k_asym * (z**2 - 0.5)
-            else:
-                k = (0.5 + 2 * abs(k_asym)) * np.sign(k_asym)
-                z = np.expm1(k * z) / k
-            v = m + h * z
+        drawn = [(e, e.draw(prng, ctx)) for e in chain(effects)]
+        truth["forms"] = {e.name: state["form"] for e, state in drawn}
+        on = [(e, state) for e, state in drawn if e.name in active]
+        # The signal chain: input side, plays, linear filters, output side.
+        signal = types.SimpleNamespace(x0=np.zeros(n_true), u=u, rt=None, g=None)
+        for e, state in on:
+            e.synth_input(state, ctx, signal)
+        v = _pi(signal.u if signal.g is None else signal.g, r, w, signal.x0, signal.rt)
+        for e, state in on:
+            v = e.synth_linear(state, ctx, v)
         y = v.copy()
-        if "creep" in effects:
-            c = prng.uniform(0.08, 0.2)
-            taus = t[-1] * np.array([prng.uniform(0.01, 0.04), prng.uniform(0.1, 0.4)])
-            t0 = prng.uniform(0.2, 1.0) / max(f0, 1e-9) / 10
-            if prng.random() < 0.5:
-                if "creep" in active:
-                    y = y + c * sum(_lowpass(v, np.exp(-dt / tau)) - v for tau in taus) * 0.5
-                form["creep"] = "two slow exponential modes"
-            else:
-                # Logarithmic creep: every output change keeps growing as log(1 + t/t0).
-                kern = np.log1p(np.arange(len(t)) * dt / t0)
-                kern = kern / kern[-1]
-                if "creep" in active:
-                    y = y + c * 1.5 * np.convolve(np.diff(v, prepend=v[0]), kern)[: len(t)]
-                form["creep"] = "logarithmic, log(1 + t/t0)"
-        if "offset_drift" in effects:
-            d = prng.uniform(0.04, 0.1) * span0
-            kind = str(prng.choice(["ramp", "warm-up", "oscillation"]))
-            s = t / t[-1]
-            shape = {"ramp": s, "warm-up": 1 - np.exp(-s / prng.uniform(0.1, 0.3)),
-                     "oscillation": np.sin(2 * np.pi * s * prng.uniform(0.5, 1.5) + prng.uniform(0, 6))}[kind]
-            if "offset_drift" in active:
-                y = y + d * shape * prng.choice([-1, 1])
-            form["offset_drift"] = kind
+        for e, state in on:
+            v, y = e.synth_output(state, ctx, v, y)
         return y
 
     y = simulate(effects)
@@ -220,12 +118,6 @@ def _plain_pi_misfit(u, y):
     """RMS of what a plain PI model (dense threshold grid, fitted weights, offset) leaves of y."""
     un = (u - 0.5 * (u.max() + u.min())) / (0.5 * np.ptp(u))
     X = np.column_stack([plays(un, THRESHOLDS, np.full((1, N_PLAYS), un[0]))[0], np.ones(len(u))])
-    res = y - X @ _lstsq(X, y)
+    res = y - X @ lstsq(X, y)
     return float(np.sqrt(np.mean(res**2)))
 
-
-def _pi_states(u, r):
-    x = np.zeros(len(r))
-    for ui in u:
-        x = np.maximum(ui - r, np.minimum(ui + r, x))
-    return x

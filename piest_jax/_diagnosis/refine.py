@@ -1,17 +1,17 @@
 """Joint refinement of a diagnosis model by optimistix least squares.
 
-The naming loop (`_diagnose`) fits every candidate by variable projection on a grid of its
+The naming loop (`diagnose`) fits every candidate by variable projection on a grid of its
 nonlinear parameters: exact and global over the grid, but no finer than the grid and its pattern
 search, and with the creep and output-polynomial terms linearised around the previous fit. Once
 the effects are chosen, the model is refined here as one nonlinear least-squares problem solved
 by optimistix (Levenberg-Marquardt by default, as in `fit_pi`): the play weights, the offset and
 every effect's parameters (delay, time constants, damping, rate gain and exponent, envelope,
 history turning points, creep time constants) move together, differentiated through the scans.
-The model is the exact one of `_effects` (the same equations, normalised units): the creep
-follows the current output, not the previous fit's.
+The model is the exact one of `model` (each effect's JAX hooks state the same equations as its
+NumPy ones, normalised units): the creep follows the current output, not the previous fit's.
 
 Positive quantities are carried as logarithms (times, gains) or through a softplus (play weights
-and creep coefficients, which `_effects` keeps >= 0), so every step stays physical.
+and creep coefficients, which `model` keeps >= 0), so every step stays physical.
 """
 
 from typing import NamedTuple
@@ -19,130 +19,73 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 import numpy as np
 import optimistix as optx
 from jax import lax
 
-from . import effects as _effects
 from .._identification.fit import _softplus_inv, _solver, result_name
 from .._identification.fit_data import pad_count
+from .basis import N_PLAYS, THRESHOLDS
+from .effects import EFFECT, chain
+from .model import output_slices
+from .scaling import Prepared
 
 SOLVERS = ("lm", "gn", "bfgs")
 
-
-class Structure(NamedTuple):
-    """The static shape of a configuration: which terms exist and in which form."""
-
-    asymmetry: bool
-    rate_form: str | None
-    n_turns: int
-    delay: bool
-    dynamics: str | None
-    n_creep: int
-    drift: bool
+# The static shape of a configuration: (effect name, static form) pairs in chain order, which
+# fix which terms exist and in which form (hashable, so it is a static argument of the solve).
+Structure = tuple
 
 
 def structure(cfg) -> Structure:
     """The `Structure` of a configuration (dict effect -> grid parameters)."""
-    rate = cfg.get("rate_dependence")
-    dyn = cfg.get("linear_dynamics")
-    return Structure(
-        "asymmetry" in cfg, None if rate is None else rate[0],
-        len(cfg["initial_state"]) if "initial_state" in cfg else 0,
-        "delay" in cfg, None if dyn is None else dyn[0],
-        len(cfg["creep"]) if "creep" in cfg else 0, "offset_drift" in cfg,
-    )
+    return tuple((e.name, e.static(cfg[e.name])) for e in chain(cfg))
+
+
+def _transferable(st: Structure) -> Structure:
+    """The structure without the effects tied to the identification record."""
+    return tuple((n, s) for n, s in st if not EFFECT[n].record_specific)
 
 
 def initial_params(cfg, w) -> dict:
-    """The parameters of a configuration and its `_effects.fit` coefficients `w` (normalised units)."""
+    """The parameters of a configuration and its `model.fit` coefficients `w` (normalised units)."""
     w = np.asarray(w, float)
-    n = _effects.N_PLAYS
-    # A coefficient the sign-constrained fit left at exactly 0 would sit where the softplus is
-    # flat and never move; starting it at a thousandth of the largest lets the solver use it.
+    n = N_PLAYS
+    # A weight the sign-constrained fit left at exactly 0 would sit where the softplus is flat
+    # and never move; starting it at a thousandth of the largest lets the solver use it.
     floor = 1e-3 * max(float(np.max(np.abs(w[:n]))), 1e-300)
     theta = {"weights": _softplus_inv(np.maximum(w[:n], floor)), "offset": np.asarray(w[n])}
-    k = n + 1
-    if "asymmetry" in cfg:
-        theta["envelope"] = np.asarray(float(cfg["asymmetry"]))
-        theta["poly"] = w[k : k + _effects.N_POLY]
-        k += _effects.N_POLY
-    if "creep" in cfg:
-        c = w[k : k + len(cfg["creep"])]
-        theta["creep"] = _softplus_inv(np.maximum(c, 1e-3 * max(float(np.max(np.abs(c))), 1e-12)))
-        theta["log_creep_tau"] = np.log(np.asarray(cfg["creep"], float))
-        k += len(cfg["creep"])
-    if "offset_drift" in cfg:
-        theta["drift"] = w[k : k + _effects.N_DRIFT]
-    if "rate_dependence" in cfg:
-        _, gain, exponent = cfg["rate_dependence"]
-        theta["log_rate"] = np.log(np.asarray([gain, exponent], float))
-    if "initial_state" in cfg:
-        theta["turns"] = np.asarray(cfg["initial_state"], float)
-    if "delay" in cfg:
-        theta["log_delay"] = np.log(np.asarray(float(cfg["delay"])))
-    dyn = cfg.get("linear_dynamics")
-    if dyn is not None:
-        theta["log_dynamics"] = np.log(np.asarray(dyn[1:], float))
+    slices = output_slices(cfg)
+    for e in chain(cfg):
+        sl = slices.get(e.name)
+        theta.update(e.init_theta(cfg[e.name], w[sl] if sl is not None else w[:0]))
     return {k: jnp.asarray(v) for k, v in theta.items()}
 
 
 def to_config(cfg, theta) -> tuple[dict, np.ndarray]:
-    """The configuration and `_effects` coefficient vector that a parameter set stands for."""
+    """The configuration and `model` coefficient vector that a parameter set stands for."""
     t = {k: np.asarray(v, float) for k, v in theta.items()}
     cfg = dict(cfg)
-
-    def softplus(v):
-        return np.asarray(jax.nn.softplus(v), float)
-
-    w = [softplus(t["weights"]), [t["offset"]]]
-    if "envelope" in t:
-        cfg["asymmetry"] = float(t["envelope"])
-        w.append(t["poly"])
-    if "creep" in t:
-        cfg["creep"] = tuple(float(v) for v in np.exp(t["log_creep_tau"]))
-        w.append(softplus(t["creep"]))
-    if "drift" in t:
-        w.append(t["drift"])
-    if "log_rate" in t:
-        gain, exponent = np.exp(t["log_rate"])
-        cfg["rate_dependence"] = (cfg["rate_dependence"][0], float(gain), float(exponent))
-    if "turns" in t:
-        cfg["initial_state"] = tuple(float(v) for v in t["turns"])
-    if "log_delay" in t:
-        cfg["delay"] = float(np.exp(t["log_delay"]))
-    if "log_dynamics" in t:
-        cfg["linear_dynamics"] = (cfg["linear_dynamics"][0], *(float(v) for v in np.exp(t["log_dynamics"])))
+    w = [np.asarray(jax.nn.softplus(t["weights"]), float), [t["offset"]]]
+    for e in chain(cfg):
+        cfg[e.name], coef = e.from_theta(cfg[e.name], t)
+        w.extend(coef)
     return cfg, np.concatenate([np.atleast_1d(np.asarray(v, float)) for v in w])
 
 
-def _history_states(g0, turns):
-    r = jnp.asarray(_effects.THRESHOLDS, g0.dtype)
-    x = jnp.full(r.shape, g0)
-    for a in [*turns, g0]:
-        x = jnp.clip(x, a - r, a + r)
-    return x
-
-
-def _rate_power(rho, exponent):
-    # rho^p with rho = 0 allowed: the power's gradient in p is rho^p log(rho), zero there.
-    pos = rho > 0
-    safe = jnp.where(pos, rho, 1.0)
-    return jnp.where(pos, jnp.exp(exponent * jnp.log(safe)), 0.0)
-
-
 def _hysteresis(theta, st: Structure, u, rho):
-    """The weighted plays plus offset, before delay and dynamics (T,)."""
-    r0 = jnp.asarray(_effects.THRESHOLDS, u.dtype)
-    g = u + theta["envelope"] * u**2 if st.asymmetry else u
-    if st.rate_form is None:
-        r = jnp.broadcast_to(r0, (u.shape[0], r0.shape[0]))
-    else:
-        gain, exponent = jnp.exp(theta["log_rate"][0]), jnp.exp(theta["log_rate"][1])
-        rp = _rate_power(rho, exponent)[:, None]
-        r = r0[None, :] * (1 + gain * rp) if st.rate_form == "scale" else r0[None, :] + gain * rp
-    x0 = _history_states(g[0], list(theta["turns"])) if st.n_turns else jnp.full(r0.shape, g[0])
+    """The weighted plays plus offset, before the linear filters (T,)."""
+    r0 = jnp.asarray(THRESHOLDS, u.dtype)
+    effects = [(EFFECT[n], s) for n, s in st]
+    g = u
+    for e, s in effects:
+        g = e.jax_input(theta, s, g)
+    r = jnp.broadcast_to(r0, (u.shape[0], r0.shape[0]))
+    for e, s in effects:
+        r = e.jax_thresholds(theta, s, r, r0, rho)
+    x0 = jnp.full(r0.shape, g[0])
+    for e, s in effects:
+        x0 = e.jax_initial_states(theta, s, g[0], x0)
     w = jax.nn.softplus(theta["weights"])
 
     def step(x, gr):
@@ -153,82 +96,26 @@ def _hysteresis(theta, st: Structure, u, rho):
     return v + theta["offset"]
 
 
-def _delayed(v, d):
-    """v delayed by d >= 0 samples, linear interpolation, the start held (as `_effects.delayed`)."""
-    k = jnp.floor(d)
-    f = d - k
-    idx = jnp.arange(v.shape[0])
-    a = v[jnp.clip(idx - k.astype(idx.dtype), 0, None)]
-    b = v[jnp.clip(idx - k.astype(idx.dtype) - 1, 0, None)]
-    return (1 - f) * a + f * b
-
-
-def _filtered(v, kind, log_par, dt):
-    """v through a unit-gain 1st/2nd-order filter, exact for v linear between samples, from rest."""
-    par = jnp.exp(log_par)
-    if kind == "first":
-        A, B = -jnp.ones((1, 1)) / par[0], jnp.ones((1,)) / par[0]
-    else:
-        om, ze = par[0], par[1]
-        A = jnp.array([[0.0, 1.0], [-om * om, -2 * ze * om]])
-        B = jnp.array([0.0, om * om])
-    n = A.shape[0]
-    # The state, the input and its slope evolve together linearly over one step: one exponential.
-    M = jnp.zeros((n + 2, n + 2)).at[:n, :n].set(A).at[:n, n].set(B).at[n, n + 1].set(1.0)
-    E = jsl.expm(M * dt)
-    Phi, Gu, Gs = E[:n, :n], E[:n, n], E[:n, n + 1]
-    slope = jnp.diff(v, append=v[-1:]) / dt
-    x0 = jnp.zeros(n).at[0].set(v[0])
-
-    def step(x, vs):
-        return Phi @ x + Gu * vs[0] + Gs * vs[1], x[0]
-
-    _, out = lax.scan(step, x0, (v, slope))
-    return out
-
-
-def _lowpass(v, lam):
-    def step(y, vt):
-        y = lam * y + (1 - lam) * vt
-        return y, y
-
-    return lax.scan(step, jnp.full(lam.shape, v[0]), v)[1]
-
-
-def _poly(v, norm):
-    vc = jnp.clip((v - norm[0]) / norm[1], -_effects.POLY_RANGE, _effects.POLY_RANGE)
-    return jnp.stack([vc**k for k in range(2, 2 + _effects.N_POLY)], axis=1)
-
-
 def model(theta, st: Structure, data, *, transferable_only=False):
     """The model's output (T,) in normalised units.
 
     **Arguments:** `theta`, the parameters (`initial_params`); `st`, the `Structure`; `data`, a
     dict with `u`, `rho`, `s` (T,) and the scalars `dt`, `norm`; `transferable_only`, switch off
-    the identification record's own history (relaxed plays) and drift.
+    the effects tied to the identification record (its history, its drift).
 
     **Returns:** the output (T,).
     """
-    if transferable_only and st.n_turns:
-        st = st._replace(n_turns=0)
+    if transferable_only:
+        st = _transferable(st)
     v = _hysteresis(theta, st, data["u"], data["rho"])
-    if st.delay:
-        v = _delayed(v, jnp.exp(theta["log_delay"]) / data["dt"])
-    if st.dynamics is not None:
-        v = _filtered(v, st.dynamics, theta["log_dynamics"], data["dt"])
-    if st.asymmetry:
-        v = v + _poly(v, data["norm"]) @ theta["poly"]
-    if st.n_creep:
-        lam = jnp.exp(-data["dt"] / jnp.exp(theta["log_creep_tau"]))
-        c = jax.nn.softplus(theta["creep"])
-        v = v + (_lowpass(v, lam) - v[:, None]) @ c
-    if st.drift and not transferable_only:
-        k = jnp.arange(1, _effects.N_DRIFT + 1)
-        v = v + jnp.cos(jnp.pi * data["s"][:, None] * k[None, :]) @ theta["drift"]
+    for n, s in st:
+        v = EFFECT[n].jax_linear(theta, s, v, data)
+    for n, s in st:
+        v = EFFECT[n].jax_output(theta, s, v, data)
     return v
 
 
-def data_of(p: _effects.Prepared, norm, *, pad: bool = True):
+def data_of(p: Prepared, norm, *, pad: bool = True):
     """The arrays `model` reads, padded to a length shared by nearby lengths, and the mask."""
     T = len(p.u)
     extra = pad_count(T) if pad else 0
@@ -269,15 +156,15 @@ class Refined(NamedTuple):
     accepted: bool
 
 
-def refine(p: _effects.Prepared, cfg, w, norm, *, solver: str = "lm", max_steps: int = 100,
+def refine(p: Prepared, cfg, w, norm, *, solver: str = "lm", max_steps: int = 100,
            rtol: float = 1e-6, atol: float = 1e-9) -> Refined:
-    """Refine a configuration fitted by `_effects.fit` jointly, by optimistix least squares.
+    """Refine a configuration fitted by `model.fit` jointly, by optimistix least squares.
 
     **Arguments:**
 
     - `p`: the record (normalised units, full rate).
     - `cfg`, `w`, `norm`: the configuration, its coefficients and the output polynomial's
-      normalisation, from `_effects.fit`.
+      normalisation, from `model.fit`.
     - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`.
     - `max_steps`, `rtol`, `atol`: the solver's step limit and tolerances (normalised units;
       the defaults are `fit_pi`'s, and `atol` bounds the mean squared error's last change, far
@@ -304,7 +191,7 @@ def refine(p: _effects.Prepared, cfg, w, norm, *, solver: str = "lm", max_steps:
                    float(np.sqrt(loss)), accepted)
 
 
-def predict(refined: Refined, p: _effects.Prepared, norm, *, transferable_only=False,
+def predict(refined: Refined, p: Prepared, norm, *, transferable_only=False,
             history=None) -> np.ndarray:
     """The refined model's output on a record (normalised units, (T,)).
 
@@ -319,7 +206,7 @@ def predict(refined: Refined, p: _effects.Prepared, norm, *, transferable_only=F
     theta, st = refined.theta, refined.structure
     if history is not None:
         theta = {**theta, "turns": jnp.asarray(history, data["u"].dtype)}
-        st = st._replace(n_turns=len(history), drift=False)
+        st = tuple(sorted(_transferable(st) + (("initial_state", len(history)),), key=lambda a: EFFECT[a[0]].rank))
         transferable_only = False
     return np.asarray(_predict_jit(theta, st, data, transferable_only))
 

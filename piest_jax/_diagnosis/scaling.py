@@ -10,8 +10,8 @@ import dataclasses
 import numpy as np
 from scipy import signal as _signal
 
-from . import effects as _effects
 from .._data.record import DataError, Record
+from .basis import N_PLAYS, THRESHOLDS, plays, turning_samples
 
 MIN_SAMPLES = 200
 N_BLOCKS = 64
@@ -34,6 +34,33 @@ def noise_std(y) -> float:
     h0 = _signal.savgol_coeffs(7, 3)[3]
     mad = np.median(np.abs(r - np.median(r)))
     return float(1.4826 * mad / np.sqrt(1 - h0))
+
+
+class Prepared:
+    """One record in normalised units, with the quantities every regressor needs.
+
+    With `play_u`, `play_rho` and `keep` (from `basis.turning_samples`), the record is a
+    sub-sampled one whose plays run on the kept samples plus the turning samples between them,
+    so that the play columns equal the full-rate plays at the kept samples.
+    """
+
+    def __init__(self, u, y, t, rate_scale, period, folds=None, *, play_u=None, play_rho=None, keep=None):
+        self.u, self.y, self.t = (np.asarray(a, float) for a in (u, y, t))
+        self.dt = float(np.median(np.diff(self.t)))
+        self.s = (self.t - self.t[0]) / max(self.t[-1] - self.t[0], 1e-300)
+        self.rho = np.abs(np.gradient(self.u, self.t)) / rate_scale
+        self.period = period
+        self.folds = folds
+        self.play_u = self.u if play_u is None else np.asarray(play_u, float)
+        self.play_rho = self.rho if play_rho is None else np.asarray(play_rho, float)
+        self.keep = keep
+        self._plain = None
+
+    def plain_plays(self):
+        """The plays on the threshold grid from rest at the first sample (computed once)."""
+        if self._plain is None:
+            self._plain = plays(self.play_u, THRESHOLDS, np.full((1, N_PLAYS), self.u[0]), self.keep)[0]
+        return self._plain
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,14 +143,14 @@ def scaling_of(rec: Record) -> Scaling:
     )
 
 
-def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) -> _effects.Prepared:
+def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) -> Prepared:
     """A record in the identification record's normalised units, optionally sub-sampled.
 
     **Arguments:** `rec`; `sc`, the identification record's `Scaling`; `step`, keep every
     `step`-th sample; `folds`, assign the samples to interleaved cross-validation folds of
     contiguous blocks.
 
-    **Returns:** an `_effects.Prepared`.
+    **Returns:** a `Prepared`.
     """
     u_full = (rec.u - sc.u_mid) / sc.u_half
     u = u_full[::step]
@@ -134,9 +161,9 @@ def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) ->
         blocks = np.minimum((np.arange(len(u)) * N_BLOCKS) // len(u), N_BLOCKS - 1)
         f = blocks % N_FOLDS
     if step == 1:
-        return _effects.Prepared(u, y, t, sc.rate_scale, sc.period, f)
+        return Prepared(u, y, t, sc.rate_scale, sc.period, f)
     # The plays see every turning point of the full-rate input, not only the kept samples: a
     # sub-sampled sine's peaks fall between samples, and plays run on it would miss them.
-    index, keep = _effects.turning_samples(u_full, step)
+    index, keep = turning_samples(u_full, step)
     rho = np.abs(np.gradient(u_full, rec.t))[index] / sc.rate_scale
-    return _effects.Prepared(u, y, t, sc.rate_scale, sc.period, f, play_u=u_full[index], play_rho=rho, keep=keep)
+    return Prepared(u, y, t, sc.rate_scale, sc.period, f, play_u=u_full[index], play_rho=rho, keep=keep)
