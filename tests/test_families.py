@@ -125,3 +125,27 @@ def test_bad_arguments():
         F.draw_thresholds(key, 2.5)
     with pytest.raises(ValueError, match="time grid of at least two samples"):
         F.draw_input(key, "sine", jnp.zeros((3, 2)), 1.0)
+
+
+def test_registry_is_consistent():
+    assert F.FAMILIES == tuple(F.FAMILY)
+    for name, fam in F.FAMILY.items():
+        assert fam.name == name and type(fam).__module__.endswith(f"families.{name}")  # one module each
+    assert set(F.FAMILIES) - set(F.DEFAULT_FAMILIES) == {"ramp", "touch", "nested"}
+    with pytest.raises(TypeError, match="does not define its name"):
+        type("Nameless", (F.AbstractInputFamily,), {})
+
+
+@pytest.mark.parametrize("family", F.FAMILIES)
+def test_each_family_reads_only_its_own_uniforms(family):
+    # draw_case hands the uniforms after a family's own to the thresholds, states and weights:
+    # a family that read past its count would correlate its input with them.
+    fam = F.FAMILY[family]
+    t = jnp.asarray(T)
+    r = jnp.asarray([0.0, 0.4, 1.1])
+    v = jax.random.uniform(jax.random.key(5), (fam.n_uniforms(t.shape[0]),), t.dtype)
+    u = fam.input(v, t, r)
+    for junk in (0.0, 0.99):
+        longer = jnp.concatenate([v, jnp.full(7, junk, t.dtype)])
+        np.testing.assert_array_equal(np.asarray(fam.input(longer, t, r)), np.asarray(u))
+    assert u.shape == t.shape and np.ptp(np.asarray(u)) > 0

@@ -1,7 +1,7 @@
 """The Monte Carlo PE map engine: a batch of PRNG keys, chunked, sharded over devices.
 
 One draw is one PRNG key: it fixes an input family and its parameters, a threshold set, initial
-play states and true weights (see `_families.py`); `draw_statistics` (`_draw_metrics.py`) turns
+play states and true weights (see `families/`); `draw_statistics` (`_draw_metrics.py`) turns
 it into the map's quantities. The batch runs as one jitted computation per chunk of keys, with
 the key axis sharded over every JAX device through a one-axis `Mesh` and `NamedSharding`.
 """

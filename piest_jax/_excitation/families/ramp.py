@@ -1,0 +1,17 @@
+"""A slow triangle: monotone stretches longer than a window (adversarial)."""
+
+from ..signals import triangle
+from .family import AbstractInputFamily, common
+
+
+class Ramp(AbstractInputFamily):
+    name = "ramp"
+    adversarial = True
+
+    def n_uniforms(self, T):
+        return 4
+
+    def input(self, v, t, r):
+        a, f, o, p = common(v, r[-1])
+        # Ten times slower than the triangle family: stretches of range up to 8 r_max.
+        return triangle(t, a, f / 10, o, p)
