@@ -421,3 +421,19 @@ def test_cli_fit_bad_input(tmp_path, capsys):
             main(["fit", str(tmp_path / "flat.csv"), *argv, "--out", out])
         assert e.value.code == 2
         assert needle in capsys.readouterr().err
+
+
+def test_solver_objects_are_accepted(clean):
+    import optimistix as optx
+
+    u, y, f = clean
+    # The named default is this object: the same fit, bit for bit.
+    same = pj.fit_pi(u, y, 3, key=jax.random.key(0), solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-9))
+    np.testing.assert_array_equal(np.asarray(same.thresholds), np.asarray(f.thresholds))
+    np.testing.assert_array_equal(np.asarray(same.weights), np.asarray(f.weights))
+    # Another solver, with its own tolerances, reaches the same optimum.
+    dog = pj.fit_pi(u, y, 3, key=jax.random.key(0), solver=optx.Dogleg(rtol=1e-8, atol=1e-10))
+    assert dog.result_name == "successful"
+    np.testing.assert_allclose(dog.thresholds, R_TRUE, atol=1e-5)
+    with pytest.raises(ValueError, match="the class Dogleg, not a solver: pass an instance"):
+        pj.fit_pi(u, y, 3, solver=optx.Dogleg)

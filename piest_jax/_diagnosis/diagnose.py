@@ -22,6 +22,7 @@ import numpy as np
 
 from .._data.record import Record
 from .._identification.compare import fit_percent
+from .._identification.solvers import check_solver
 from .._progress import progress
 from . import locate as _locate
 from . import model as _model
@@ -206,8 +207,8 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     """
     candidates = list(candidates)
     check_names(candidates)
-    if solver is not None and solver not in _refine.SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {_refine.SOLVERS} or None")
+    if solver is not None:
+        check_solver(solver)
     check_record(rec)
     sc = scaling_of(rec)
     step = int(math.ceil(rec.n_samples / SEARCH_SAMPLES))

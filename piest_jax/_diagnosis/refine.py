@@ -23,14 +23,14 @@ import numpy as np
 import optimistix as optx
 from jax import lax
 
-from .._identification.fit import _softplus_inv, _solver, result_name
+from .._identification.fit import _softplus_inv
 from .._identification.fit_data import pad_count
+from .._identification.solvers import SOLVERS as SOLVERS
+from .._identification.solvers import check_solver, least_squares_solver, result_name
 from .basis import N_PLAYS, THRESHOLDS
 from .effects import EFFECT, chain
 from .model import output_slices
 from .scaling import Prepared
-
-SOLVERS = ("lm", "gn", "bfgs")
 
 # The static shape of a configuration: (effect name, static form) pairs in chain order, which
 # fix which terms exist and in which form (hashable, so it is a static argument of the solve).
@@ -136,7 +136,7 @@ def _residuals(theta, args):
 @eqx.filter_jit
 def _solve(theta0, st, data, y, mask, *, solver, max_steps, rtol, atol):
     args = (st, data, y, mask)
-    sol = optx.least_squares(_residuals, _solver(solver, rtol, atol), theta0, args=args,
+    sol = optx.least_squares(_residuals, least_squares_solver(solver, rtol, atol), theta0, args=args,
                              max_steps=max_steps, throw=False)
     loss0 = jnp.sum(_residuals(theta0, args) ** 2)
     loss = jnp.sum(_residuals(sol.value, args) ** 2)
@@ -156,7 +156,7 @@ class Refined(NamedTuple):
     accepted: bool
 
 
-def refine(p: Prepared, cfg, w, norm, *, solver: str = "lm", max_steps: int = 100,
+def refine(p: Prepared, cfg, w, norm, *, solver="lm", max_steps: int = 100,
            rtol: float = 1e-6, atol: float = 1e-9) -> Refined:
     """Refine a configuration fitted by `model.fit` jointly, by optimistix least squares.
 
@@ -165,7 +165,8 @@ def refine(p: Prepared, cfg, w, norm, *, solver: str = "lm", max_steps: int = 10
     - `p`: the record (normalised units, full rate).
     - `cfg`, `w`, `norm`: the configuration, its coefficients and the output polynomial's
       normalisation, from `model.fit`.
-    - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`.
+    - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`, or an optimistix
+      least-squares solver or minimiser object (used as given).
     - `max_steps`, `rtol`, `atol`: the solver's step limit and tolerances (normalised units;
       the defaults are `fit_pi`'s, and `atol` bounds the mean squared error's last change, far
       below any measured record's noise).
@@ -174,8 +175,7 @@ def refine(p: Prepared, cfg, w, norm, *, solver: str = "lm", max_steps: int = 10
     lower the error of the exact model at the starting point, or gave a non-finite result; the
     caller then keeps the variable-projection fit.
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    check_solver(solver)
     st = structure(cfg)
     theta0 = initial_params(cfg, w)
     data, y, mask = data_of(p, norm)

@@ -38,13 +38,15 @@ from jaxtyping import Array, Bool, Float
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike, States, Thresholds, Weights
 from .fit_data import prepare as _prepare
+from .solvers import SOLVERS as SOLVERS
+from .solvers import check_solver, least_squares_solver, result_name
 from .._operators.pi import PIOperator
 from .._operators.play import play_step
 from .._models.composite import HysteresisModel
 from .._models.creep import Creep, check_time_constants, decays, lag_states, lag_step
 
-Solver = Literal["lm", "gn", "bfgs"]
-SOLVERS = ("lm", "gn", "bfgs")
+# A solver name from `SOLVERS` or an optimistix solver object (`solvers.py`).
+Solver = Literal["lm", "gn", "bfgs"] | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser
 
 
 class PIFit(eqx.Module):
@@ -107,14 +109,6 @@ class PIFit(eqx.Module):
         x0 = self.initial_states if initial_states is None else initial_states
         y = PIOperator(self.thresholds, self.weights, x0)(u) + self.offset
         return y if self.creep is None else y + self.creep(u)
-
-
-def result_name(result) -> str:
-    """The name of a concrete optimistix result code (`"successful"`, `"max_steps_reached"`, ...)."""
-    for name, item in optx.RESULTS._name_to_item.items():
-        if bool(result == item):
-            return name
-    return "unknown"
 
 
 def unexcited(u: SignalLike, thresholds) -> Bool[Array, " plays"]:
@@ -209,16 +203,6 @@ def _residuals(params, args):
     return jnp.concatenate([res, *extra]) if extra else res
 
 
-def _solver(name: str, rtol: float, atol: float):
-    if name == "lm":
-        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    if name == "gn":
-        return optx.GaussNewton(rtol=rtol, atol=atol)
-    if name == "bfgs":
-        return optx.BFGS(rtol=rtol, atol=atol)
-    raise ValueError(f"unknown solver {name!r}; choose one of {SOLVERS}")
-
-
 def _grid(n, n_starts, dtype, key):
     """Starting thresholds (starts, n) in normalised units, where 1 is half the input range."""
     tops = jnp.linspace(1.0, 0.5, n_starts, dtype=dtype)
@@ -291,7 +275,7 @@ def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
         args = (un, yn, x0, mask, positive_weights, r_bound, active, z0, lag_active)
         p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound,
                              active, z0, log_tau0, lag_active)
-        sol = optx.least_squares(_residuals, _solver(solver, rtol, atol), p0, args=args,
+        sol = optx.least_squares(_residuals, least_squares_solver(solver, rtol, atol), p0, args=args,
                                  max_steps=max_steps, throw=False)
         res = _residuals(sol.value, args)
         loss = jnp.sum(res**2)
@@ -365,7 +349,8 @@ def fit_pi(
     - `positive_weights`: keep every weight positive (the fitted operator is then invertible).
     - `fit_initial_states`: also fit the plays' states before the first sample.
     - `initial_states`: fixed states (scalar or (n,)) when they are not fitted; default u[0].
-    - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`.
+    - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`, or an optimistix
+      least-squares solver or minimiser object, used as given with its own tolerances.
     - `n_starts`: starting threshold grids, solved under `vmap` (see `starts_at_once`); the best
       is kept.
     - `key`: a PRNG key; when given, starts after the first use random threshold spacings.
@@ -398,8 +383,7 @@ def fit_pi(
     **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
     non-finite data, an input with zero range, or more parameters than fitted samples.
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    check_solver(solver)
     if n_starts < 1:
         raise ValueError(f"`n_starts` must be at least 1, got {n_starts}")
     if starts_at_once is not None and (
