@@ -153,3 +153,38 @@ def test_batch_convergence_study_follows_assumption1(tmp_path):
     assert np.all(settled[pe][:, 1:3, 0] == 1.0)
     # ... and without it no estimator does: ω3 is never seen, the error stays large
     assert np.all(settled[~pe] == 0.0) and np.all(err[~pe] > 0.1)
+
+
+def _assert_same_stats(a, b):
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-12, atol=1e-12)
+
+
+def test_estimator_objects_give_the_named_results():
+    key = jax.random.PRNGKey(3)
+    sigma = [0.0, 0.05, 0.02, 0.1]
+    named = run_batch(INPUTS, WEIGHTS, R, key=key, estimator="forgetting", P0=1e3,
+                      forgetting=[1.0, 0.98, 0.99, 0.995], noise_std=sigma)
+    # One object per member: the array settings are stacked and batched.
+    objects = [pj.ForgettingRLS(1e3, lam) for lam in (1.0, 0.98, 0.99, 0.995)]
+    _assert_same_stats(run_batch(INPUTS, WEIGHTS, R, key=key, estimator=objects, noise_std=sigma), named)
+    # One object shared by every member.
+    shared = run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS(1e8, DT), noise_std=sigma)
+    _assert_same_stats(shared, run_batch(INPUTS, WEIGHTS, R, key=key, estimator="continuous", P0=1e8,
+                                         dt=DT, noise_std=sigma))
+
+
+def test_estimator_objects_are_checked():
+    key = jax.random.PRNGKey(0)
+    with pytest.raises(ValueError, match="the class ContinuousRLS, not an estimator"):
+        run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS)
+    with pytest.raises(ValueError, match="one batch runs one estimator class"):
+        run_batch(INPUTS, WEIGHTS, R, key=key,
+                  estimator=[pj.ContinuousRLS(1.0, DT)] * 2 + [pj.NormalisedGradient(1.0)] * 2)
+    with pytest.raises(ValueError, match="`P0` is a setting of the estimator object"):
+        run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS(1.0, DT), P0=5.0)
+    with pytest.raises(ValueError, match="static settings"):
+        run_batch(INPUTS, WEIGHTS, R, key=key, estimator=[pj.ContinuousRLS(1.0, DT)] * 3
+                  + [pj.ContinuousRLS(1.0, DT, normalisation="standard")])
+    with pytest.raises(ValueError, match="set up for 2 plays but there are 3 thresholds"):
+        run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS(np.eye(2), DT))

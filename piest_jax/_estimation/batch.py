@@ -103,10 +103,10 @@ def run_batch(
     *,
     key: PRNGKeyArray,
     estimator="continuous",
-    P0=1e8,
+    P0=None,
     noise_std=0.0,
-    forgetting=1.0,
-    gain=1.0,
+    forgetting=None,
+    gain=None,
     dt: float = 1e-3,
     normalisation: str = "paper",
     windup: str = "trace",
@@ -121,12 +121,17 @@ def run_batch(
       y_k = h_kᵀW_k and the statistics refer to the final weights W_T).
     - `thresholds`: (n,), increasing, shared by the batch.
     - `key`: PRNG key for the measurement noise (split once per member, see the module docs).
-    - `estimator`: one name from `ESTIMATORS` or one per member.
-    - `P0`: initial gain P0·I of the least-squares estimators, scalar or (B,).
+    - `estimator`: one name from `ESTIMATORS` or one per member; or an estimator object (any
+      [`AbstractEstimator`][], yours included) shared by every member, or one object per member,
+      all of one class with the same static settings (their array settings, such as P0, are
+      stacked and batched).
+    - `P0`: initial gain P0·I of named least-squares estimators, scalar or (B,) (default 1e8).
     - `noise_std`: standard deviation of white Gaussian noise on y, scalar or (B,).
-    - `forgetting`: λ of `"forgetting"` members, scalar or (B,).
-    - `gain`: μ of `"gradient"` members, scalar or (B,).
+    - `forgetting`: λ of `"forgetting"` members, scalar or (B,) (default 1).
+    - `gain`: μ of `"gradient"` members, scalar or (B,) (default 1).
     - `dt`, `normalisation`: of `"continuous"` members; `windup`: of `"forgetting"` members.
+      An estimator object carries its own settings: `P0`, `forgetting` and `gain` are then
+      refused, and `dt`, `normalisation`, `windup` are not used.
     - `rtol`: relative tolerance for `settle_index`.
 
     **Returns:** a [`BatchStats`][].
@@ -152,12 +157,24 @@ def run_batch(
         raise ValueError(f"unknown windup protection {windup!r}; choose one of {WINDUPS}")
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"`dt` must be positive and finite, got {dt}")
-    used, idx = _estimator_indices(estimator, B)
     dtype = jnp.result_type(inputs, w)
+    if _is_module_spec(estimator):
+        given = [k for k, v in (("P0", P0), ("forgetting", forgetting), ("gain", gain)) if v is not None]
+        if given:
+            raise ValueError(f"`{given[0]}` is a setting of the estimator object: set it there, not in run_batch")
+        est, batched = _estimator_modules(estimator, B, n)
+        sigma = _per_member(noise_std, B, "noise_std", dtype)
+        if _checks.is_concrete(sigma) and bool(jnp.any(sigma < 0)):
+            raise ValueError("`noise_std` must be non-negative")
+        inputs = _checks.finite(inputs, "inputs")
+        w = _checks.finite(w.astype(dtype), "true_weights")
+        return _run_modules(est, batched, rtol, inputs, w, r.astype(dtype), sigma, jax.random.split(key, B))
+    used, idx = _estimator_indices(estimator, B)
     settings = {
         k: _per_member(v, B, k, dtype)
         for k, v in (
-            ("P0", P0), ("noise_std", noise_std), ("forgetting", forgetting), ("gain", gain)
+            ("P0", 1e8 if P0 is None else P0), ("noise_std", noise_std),
+            ("forgetting", 1.0 if forgetting is None else forgetting), ("gain", 1.0 if gain is None else gain),
         )
     }
     if _checks.is_concrete(settings["noise_std"]) and bool(jnp.any(settings["noise_std"] < 0)):
@@ -208,12 +225,8 @@ _MAKERS = {"continuous": _continuous, "forgetting": _forgetting, "gradient": _gr
 
 @eqx.filter_jit
 def _run(used, normalisation, windup, rtol, inputs, true_weights, r, idx, settings, dt, keys):
-    T = inputs.shape[1]
-
     def member(u, w, i, s, k):
-        H = play(u, r)
-        w_path = jnp.broadcast_to(w, (T, r.shape[0]))
-        y = jnp.sum(H * w_path, axis=1) + s["noise_std"] * jax.random.normal(k, (T,), H.dtype)
+        H, y, w_path = _simulate(u, w, r, s["noise_std"], k)
         w0 = jnp.zeros(r.shape[0], H.dtype)
 
         def branch(j):
@@ -225,16 +238,77 @@ def _run(used, normalisation, windup, rtol, inputs, true_weights, r, idx, settin
 
         branches = [lambda j=j: branch(j) for j in range(len(used))]
         W, e = branches[0]() if len(branches) == 1 else lax.switch(i, branches)
-        final = W[-1]
-        return BatchStats(
-            final,
-            final - w_path[-1],
-            settle_index(W, w_path[-1], rtol),
-            jnp.sqrt(jnp.mean(e[T // 2 :] ** 2)),
-            jnp.all(jnp.isfinite(W)),
-        )
+        return _stats(W, e, w_path, rtol)
 
     return jax.vmap(member)(inputs, true_weights, idx, settings, keys)
+
+
+def _simulate(u, w, r, sigma, key):
+    """One member's plays H (T, n), measured output y (T,) and true weights per sample (T, n)."""
+    T = u.shape[0]
+    H = play(u, r)
+    w_path = jnp.broadcast_to(w, (T, r.shape[0]))
+    y = jnp.sum(H * w_path, axis=1) + sigma * jax.random.normal(key, (T,), H.dtype)
+    return H, y, w_path
+
+
+def _stats(W, e, w_path, rtol) -> BatchStats:
+    final = W[-1]
+    return BatchStats(
+        final,
+        final - w_path[-1],
+        settle_index(W, w_path[-1], rtol),
+        jnp.sqrt(jnp.mean(e[W.shape[0] // 2 :] ** 2)),
+        jnp.all(jnp.isfinite(W)),
+    )
+
+
+def _is_module_spec(estimator) -> bool:
+    """Whether `estimator` gives estimator objects (or classes, refused later) rather than names."""
+    items = [estimator] if isinstance(estimator, AbstractEstimator | type | str) else list(estimator)
+    return any(isinstance(e, AbstractEstimator) or isinstance(e, type) for e in items)
+
+
+def _estimator_modules(estimator, B: int, n: int):
+    """One estimator object for the batch: shared (not batched), or B objects stacked."""
+    items = [estimator] if isinstance(estimator, AbstractEstimator | type) else list(estimator)
+    for e in items:
+        if isinstance(e, type):
+            raise ValueError(f"`estimator` is the class {e.__name__}, not an estimator: pass an "
+                             f"instance with its settings, e.g. {e.__name__}(...)")
+        if not isinstance(e, AbstractEstimator):
+            raise ValueError(f"`estimator` mixes estimator objects with {e!r}: give names or objects")
+    if items[0].n_plays is not None and items[0].n_plays != n:
+        raise ValueError(f"the estimator is set up for {items[0].n_plays} plays but there are {n} thresholds")
+    if len(items) == 1:
+        return items[0], False
+    if len(items) != B:
+        raise ValueError(f"`estimator` has {len(items)} entries but the batch has {B} members")
+    if len({type(e) for e in items}) > 1:
+        names = sorted({type(e).__name__ for e in items})
+        raise ValueError(f"one batch runs one estimator class, got {', '.join(names)}: run one batch per "
+                         "class, or give names")
+    parts = [eqx.partition(e, eqx.is_array) for e in items]
+    static = parts[0][1]
+    if not all(eqx.tree_equal(static, s) for _, s in parts[1:]):
+        raise ValueError("the estimator objects differ in their static settings (e.g. `normalisation`): "
+                         "run one batch per setting")
+    shapes = {tuple(jnp.shape(x) for x in jax.tree.leaves(d)) for d, _ in parts}
+    if len(shapes) > 1:
+        raise ValueError("the estimator objects' settings differ in shape (e.g. scalar and matrix P0)")
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(d for d, _ in parts))
+    return eqx.combine(stacked, static), True
+
+
+@eqx.filter_jit
+def _run_modules(est, batched, rtol, inputs, true_weights, r, sigma, keys):
+    def member(est, u, w, s, k):
+        H, y, w_path = _simulate(u, w, r, s, k)
+        W, e = trajectory(est, H, y, jnp.zeros(r.shape[0], H.dtype))
+        return _stats(W, e, w_path, rtol)
+
+    in_axes = (eqx.if_array(0) if batched else None, 0, 0, 0, 0)
+    return eqx.filter_vmap(member, in_axes=in_axes)(est, inputs, true_weights, sigma, keys)
 
 
 def noise_study(
