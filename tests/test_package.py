@@ -142,3 +142,24 @@ def test_readme_notebooks_and_experiments_use_only_the_public_api():
     private = [f"{p.relative_to(root)}:{i}" for p in files
                for i, line in enumerate(p.read_text().splitlines(), 1) if re.search(r"piest_jax\._", line)]
     assert len(files) > 15 and private == []
+
+
+def test_lazy_exports_and_the_type_checking_imports_agree():
+    # The lazy table serves users; the TYPE_CHECKING block serves type checkers and editors.
+    # A name in one and not the other, or mapped to another object, is a silent API split.
+    import ast
+    import importlib
+
+    from pathlib import Path
+
+    src = Path(pj.__file__).read_text()
+    tree = ast.parse(src)
+    block = next(n for n in tree.body if isinstance(n, ast.If) and getattr(n.test, "id", "") == "TYPE_CHECKING")
+    checked = {}
+    for node in block.body:
+        assert isinstance(node, ast.ImportFrom), ast.dump(node)
+        for alias in node.names:
+            checked[alias.asname or alias.name] = ("." * node.level + (node.module or ""), alias.name)
+    assert checked == {**pj._EXPORTS, **{m: (".", m) for m in pj._SUBMODULES}}
+    for public, (module, attr) in pj._EXPORTS.items():
+        assert getattr(importlib.import_module(module, "piest_jax"), attr) is getattr(pj, public)
