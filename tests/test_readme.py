@@ -1,5 +1,8 @@
-"""The README stays honest: every code block in it is run here, and every `piest` command it
-shows is a valid one.
+"""The README and the guide stay honest: every code block in them is run here, and every `piest`
+command they show is a valid one.
+
+The guide pages (`docs/*.md`, in the order of the site's navigation) continue the README: their
+blocks are run after its blocks, as one reader's session.
 
 - Every ```python block is run, in order, as one script in a fresh interpreter inside a temporary
   folder (later blocks may use names from earlier ones, as a reader would in one session).
@@ -28,6 +31,10 @@ from piest_jax._cli import COMMANDS, build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+# Pages whose blocks are excerpts of the package's code (with `...`), not a session to run.
+EXCERPTS = {"architecture.md"}
+GUIDE = ["cli.md", "tour.md", "paper.md", "excitation.md", "fitting.md", "diagnosis.md", "performance.md",
+         "reliability.md", "data.md"]
 FENCE = re.compile(r"^```[ \t]*([\w+-]*)[^\n]*\n(.*?)^```[ \t]*$", re.M | re.S)
 SHELL = {"bash", "sh", "shell", "console", "zsh"}
 RUN = {"simulate"}  # help examples cheap enough to run for real here
@@ -67,7 +74,12 @@ def _readme() -> str:
     return README.read_text(encoding="utf-8")
 
 
-BLOCKS = code_blocks(_readme())
+def _documents() -> str:
+    """The README followed by the guide pages."""
+    return "\n".join([_readme(), *((ROOT / "docs" / page).read_text(encoding="utf-8") for page in GUIDE)])
+
+
+BLOCKS = code_blocks(_documents())
 PYTHON = [code for lang, code in BLOCKS if lang in PYTHON_LANGS]
 COMMAND_LINES = [args for lang, code in BLOCKS if lang in SHELL for args in piest_commands(code)]
 HELP_EXAMPLES = [
@@ -122,6 +134,13 @@ def _run(cmd, cwd, what) -> None:
     assert proc.returncode == 0, f"README {what} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
 
 
+def test_every_page_with_code_is_checked():
+    for page in sorted((ROOT / "docs").rglob("*.md")):
+        runnable = [lang for lang, _ in code_blocks(page.read_text(encoding="utf-8")) if lang in SHELL | PYTHON_LANGS]
+        assert not runnable or page.name in GUIDE or page.name in EXCERPTS, (
+            f"{page} has code blocks that no test runs: add it to GUIDE")
+
+
 def test_every_block_is_run_or_checked():
     langs = {lang for lang, _ in BLOCKS}
     unchecked = langs - SHELL - PYTHON_LANGS - BIBTEX
@@ -136,7 +155,7 @@ def test_readme_python_runs(tmp_path):
 
 
 def test_readme_shell_runs(tmp_path):
-    script = shell_script(_readme())
+    script = shell_script(_documents())
     assert "piest" in script
     (tmp_path / "readme_blocks.sh").write_text(script, encoding="utf-8")
     _run(["bash", "readme_blocks.sh"], tmp_path, "shell blocks")

@@ -37,7 +37,7 @@ def summarise(result: dict, settings: MapSettings) -> dict:
     A draw is PE when its normalised level exceeds `numerical_tolerance(dtype)`. Theorem 1 of
     the paper predicts `theorem_violations` (ρ >= 1 but not PE) = 0. The keys `sharper_holds`,
     `sharper_holds_not_pe` and `sharper_fails_pe` count the exact condition
-    ([`exact_condition`][], in every window), which is necessary and sufficient for PE: its
+    ([`exact_condition`][piest_jax.exact_condition], in every window), which is necessary and sufficient for PE: its
     mismatches with the numerical verdict are draws whose raw Gram level sits at the tolerance
     (see `docs/excitation_condition.md`). The `old_sharper_*` keys count the earlier sharper
     condition ([`sharper_condition`][], necessary only).

@@ -35,7 +35,7 @@ class PIOperator(AbstractHysteresisOperator):
     - `initial_states`: the plays' states before the first sample, a scalar or (n,); they need not
       be zero (paper eq. 2).
     - `method`: how the plays are run, `"scan"`, `"associative"`, `"kernel"` or `"auto"` (see
-      [`play`][]).
+      [`play`][piest_jax.play]).
 
     Bad shapes raise `ValueError` when the operator is built; negative or unsorted thresholds raise
     `ValueError` for concrete values and an `eqx.error_if` runtime error under `jit`.
