@@ -121,7 +121,7 @@ def _chosen(argv) -> str:
     return next((a for a in argv if not a.startswith("-")), "")
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, _guarded: bool = False) -> int:
     """Run the `piest` command line in this process (`piest_jax.run_cli`).
 
     **Arguments:** `argv`, the words after `piest`, e.g. `["fit", "data.csv", "--out", "fitted"]`
@@ -144,7 +144,9 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    in_main_thread = threading.current_thread() is threading.main_thread()
+    # Under the `piest` entry (`interrupt.entry`) a signal ends the process at once; in someone
+    # else's program SIGTERM unwinds as an exception, as Ctrl-C does.
+    in_main_thread = threading.current_thread() is threading.main_thread() and not _guarded
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main_thread else None
     try:
         _protect_inputs(args)
@@ -224,5 +226,12 @@ def _internal(args, e: Exception) -> int:
     return 1
 
 
+def entry() -> None:
+    """The `piest` console script (see `interrupt.py`)."""
+    from .interrupt import entry as run
+
+    run()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -27,6 +27,12 @@ _TMP_SUFFIX = ".tmp"
 # Debris of a killed writer is removed only after this long, so a slow writer on another machine
 # sharing the folder is never disturbed.
 _DEBRIS_AGE_S = 3600.0
+# Held while a commit renames files; `discard_temporaries` (a signal's last act) waits for it.
+COMMIT_LOCK = threading.Lock()
+# Every folder this process has written a temporary into, and the transactions open now: what a
+# signal's watcher thread (`interrupt.py`) cleans up. (The context variable is per thread.)
+_FOLDERS: set[Path] = set()
+_OPEN: list["OutputTransaction"] = []
 
 
 class OutputTransaction:
@@ -57,7 +63,7 @@ class OutputTransaction:
     def commit(self) -> None:
         """Rename every staged file into place (and remove this command's results of an earlier
         run that this run did not rewrite), shielded from Ctrl-C and `kill`."""
-        with _signals_deferred():
+        with COMMIT_LOCK, _signals_deferred():
             staged, self._staged = self._staged, {}
             stale = [p for p in self._stale if p not in staged]
             self._stale, self._created = [], []
@@ -104,6 +110,7 @@ def output_transaction(*, nonfinite=(), outputs=()):
     """
     tx = OutputTransaction(nonfinite, outputs)
     token = _ACTIVE.set(tx)
+    _OPEN.append(tx)
     try:
         yield tx
     except BaseException:
@@ -112,7 +119,24 @@ def output_transaction(*, nonfinite=(), outputs=()):
     else:
         tx.commit()
     finally:
+        _OPEN.remove(tx)
         _ACTIVE.reset(token)
+
+
+def discard_temporaries() -> None:
+    """Remove every temporary file this process has written and not yet renamed, and the empty
+    folders its open transactions created: what is left to do before the process ends at once
+    on a signal (see `interrupt.py`). Files are found by this process's id in their names, so
+    one whose writing has only begun goes too."""
+    pid = os.getpid()
+    for folder in list(_FOLDERS):
+        with contextlib.suppress(OSError):
+            for p in folder.glob(f".*.{pid}.*{_TMP_SUFFIX}"):
+                _unlink(p)
+    for tx in list(_OPEN):
+        for folder in reversed(tx._created):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 @contextlib.contextmanager
@@ -169,6 +193,7 @@ def _umask() -> int:
 
 
 def _write_temporary(path: Path, write) -> str:
+    _FOLDERS.add(path.parent.absolute())
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
