@@ -56,3 +56,31 @@ def float_list(text: str) -> list[float]:
     if any(v != v or v in (float("inf"), float("-inf")) for v in vals):
         raise argparse.ArgumentTypeError(f"NaN or inf in {text!r}")
     return vals
+
+
+def columns_arg(count: int, example: str):
+    """A parser of `count` distinct comma-separated column names (matched as the loader does)."""
+
+    def parse(text: str) -> tuple[str, ...]:
+        from .._data.columns import base_name
+
+        names = tuple(c.strip() for c in text.split(","))
+        if len(names) != count or not all(names) or len({base_name(n) for n in names}) != count:
+            raise argparse.ArgumentTypeError(
+                f"expected {count} distinct column names such as {example}, got {text!r}"
+            )
+        return names
+
+    return parse
+
+
+def add_record_options(p: argparse.ArgumentParser) -> None:
+    """--columns and --resample, for every command that reads a (t, u, y) record."""
+    p.add_argument(
+        "--columns", type=columns_arg(3, "time_s,voltage_V,displacement_um"), metavar="TIME,INPUT,OUTPUT",
+        help="the data file's names of its time, input and output columns (default t,u,y; "
+        "names match without case or a unit in brackets: `t [s]` is t)",
+    )
+    p.add_argument(
+        "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
+    )

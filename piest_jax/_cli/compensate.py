@@ -4,10 +4,11 @@ import numpy as np
 
 from . import output as _io
 from .._identification.compensate import admissible_states, feedforward
+from .._data.columns import base_name
 from .._data.record import load_columns
 from .._models.composite import HysteresisModel
 from .._operators.pi import PIOperator
-from ._common import CLIError, add_output_options
+from ._common import CLIError, add_output_options, columns_arg
 
 NAME = "compensate"
 DESCRIPTION = """\
@@ -36,6 +37,10 @@ def add_arguments(p):
     p.add_argument("desired", metavar="DESIRED.csv", help="CSV with t and the desired output")
     p.add_argument("--column", default=None, help="the desired-output column (default desired, y)")
     p.add_argument(
+        "--columns", type=columns_arg(2, "time_s,target_um"), metavar="TIME,DESIRED",
+        help="DESIRED.csv's names of its time and desired-output columns (instead of t and --column)",
+    )
+    p.add_argument(
         "--initial-states",
         type=float,
         default=None,
@@ -61,9 +66,14 @@ def load_model(path):
     return (*(np.asarray(a) for a in (op.thresholds, op.weights, c, op.initial_states)), creep)
 
 
-def load_desired(path, column):
+def load_desired(path, column, columns=None):
     """Time and desired output from a CSV with a header row (read by `load_columns`, so errors
-    name the file, row and problem)."""
+    name the file, row and problem); `columns`, the file's names for the two (default `t` and
+    `column`)."""
+    if columns is not None:
+        time, col = (base_name(c) for c in columns)
+        cols = load_columns(path, (time, col), time=time)
+        return cols[time], cols[col], col
     names = load_columns(path, ("t",))
     col = (column or ("desired" if "desired" in names else "y")).lower()
     if col not in names:
@@ -75,7 +85,9 @@ def load_desired(path, column):
 def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     r, w, c, x0, creep = load_model(args.model)
-    t, yd, col = load_desired(args.desired, args.column)
+    if args.columns is not None and args.column is not None:
+        raise CLIError("give either --column or --columns, not both")
+    t, yd, col = load_desired(args.desired, args.column, args.columns)
     if creep is not None and len(t) > 1:
         dt = float(np.median(np.diff(t)))
         if not np.isclose(dt, creep.dt, rtol=1e-3):

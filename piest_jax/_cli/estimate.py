@@ -6,7 +6,7 @@ import numpy as np
 
 from . import output as _io
 from .._data.record import load_record
-from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+from ._common import CLIError, add_output_options, add_record_options, float_list, positive_float, positive_int
 
 NAME = "estimate"
 DESCRIPTION = """\
@@ -63,6 +63,7 @@ def add_arguments(p):
     p.add_argument("--start", type=str, default="auto", help="'auto' (default), or a time in seconds")
     p.add_argument("--window", type=positive_float, metavar="SECONDS",
                    help="PE window length (default: a tenth of the estimated part)")
+    add_record_options(p)
     add_output_options(p, "piest-estimate")
 
 
@@ -100,7 +101,7 @@ def run(args) -> int:
         raise CLIError(f"--forgetting must be in (0, 1], got {args.forgetting}")
     start = _start(args.start)
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    rec = load_record(args.data)
+    rec = load_record(args.data, resample=args.resample, columns=args.columns)
     r, x0 = _thresholds(args, rec)
     if args.estimator == "rls":
         est = pj.ContinuousRLS(args.P0, rec.dt, normalisation=args.normalisation)

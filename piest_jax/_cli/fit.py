@@ -12,7 +12,7 @@ from .._identification.fit import SOLVERS, fit_pi
 from .._identification.model_file import model_keys
 from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select_plays
 from .._identification.model_structure import select_model
-from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+from ._common import CLIError, add_output_options, add_record_options, float_list, positive_float, positive_int
 
 NAME = "fit"
 DESCRIPTION = """\
@@ -134,9 +134,7 @@ def add_arguments(p):
         metavar="T",
         help="fit only the samples at time >= T (earlier ones still drive the plays)",
     )
-    p.add_argument(
-        "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
-    )
+    add_record_options(p)
     add_output_options(p, "piest-fit")
 
 
@@ -151,11 +149,11 @@ def run(args) -> int:
         raise CLIError("give either --initial-states or --fit-initial-states, not both")
     names = OUTPUTS if args.validate else OUTPUTS[:2]
     out = _io.check_outputs(args.out, names, args.force)
-    rec = load_record(args.data, resample=args.resample)
+    rec = load_record(args.data, resample=args.resample, columns=args.columns)
     if np.ptp(rec.u) == 0:
         raise CLIError(f"{args.data}: the input u is constant ({rec.u[0]:g}): it excites no play, "
                        "so there is nothing to fit")
-    val = load_record(args.validate, resample=args.resample) if args.validate else None
+    val = load_record(args.validate, resample=args.resample, columns=args.columns) if args.validate else None
     mask = None
     if args.fit_from is not None:
         if not np.isfinite(args.fit_from):

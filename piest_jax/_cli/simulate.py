@@ -6,7 +6,7 @@ from . import output as _io
 from .._excitation import signals as _signals
 from .._data.record import load_record
 from .._operators.pi import PIOperator
-from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+from ._common import CLIError, add_output_options, add_record_options, float_list, positive_float, positive_int
 
 NAME = "simulate"
 DESCRIPTION = """\
@@ -59,6 +59,7 @@ def add_arguments(p):
         default=[0.0],
         help="the plays' initial states: one value for all, or one per play (default 0)",
     )
+    add_record_options(p)
     add_output_options(p, "piest-simulate")
 
 
@@ -66,10 +67,11 @@ def _input(args):
     if args.input == "csv":
         if not args.csv:
             raise CLIError("--input csv needs --csv FILE")
-        rec = load_record(args.csv)
+        rec = load_record(args.csv, resample=args.resample, columns=args.columns)
         return rec.t, rec.u, {"kind": "csv", "file": str(args.csv)}
-    if args.csv:
-        raise CLIError(f"--csv is only used with --input csv, not --input {args.input}")
+    for given, name in ((args.csv, "--csv"), (args.columns, "--columns"), (args.resample, "--resample")):
+        if given:
+            raise CLIError(f"{name} is only used with --input csv, not --input {args.input}")
     n = args.duration / args.dt + 1
     if n < 2:
         raise CLIError(f"--dt {args.dt:g} is longer than --duration {args.duration:g}: no signal")
