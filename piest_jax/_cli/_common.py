@@ -11,6 +11,7 @@ def add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
     p.add_argument(
         "--out",
         default=default_out,
+        type=out_dir,
         metavar="DIR",
         help=f"folder for the results (default: {default_out}); created if missing",
     )
@@ -24,13 +25,48 @@ def add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
     )
 
 
+# Counts beyond this overflow 32-bit indices (and every memory); seeds are 63-bit.
+MAX_COUNT = 2**31 - 1
+MAX_SEED = 2**63 - 1
+
+
+def out_dir(text: str) -> str:
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder name, got an empty one")
+    return text
+
+
+def _whole(text: str) -> int:
+    # Digits only (int() would take `1_000` and other scripts' digits), at most 30 of them.
+    body = text.strip().removeprefix("-").removeprefix("+")
+    if not (body.isascii() and body.isdigit()) or len(body) > 30:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
+    return int(text)
+
+
 def positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    v = _whole(text)
     if v <= 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {v}")
+    if v > MAX_COUNT:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT}, got {v}")
+    return v
+
+
+def seed(text: str) -> int:
+    v = _whole(text)
+    if not 0 <= v <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"a seed is a whole number from 0 to 2^63 - 1, got {text}")
+    return v
+
+
+def finite_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return v
 
 

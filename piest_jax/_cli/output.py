@@ -354,6 +354,16 @@ def check_outputs(out_dir, names, force: bool) -> Path:
         raise OSError(f"--out {out}: cannot create the folder ({e.strerror or e})") from None
     if tx is not None:
         tx._created.extend(reversed(missing))
+        missing = []
+    # Writable? Found now, before the computation, not when the results are ready.
+    _FOLDERS.add(out.absolute())
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".piest-probe.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise OSError(f"--out {out}: cannot write there ({e.strerror or e})") from None
+    if tx is not None:
         tx._stale.extend(out / n for n in others if (out / n).exists())
     _remove_debris(out, names + others)
     return out
