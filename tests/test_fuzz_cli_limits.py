@@ -10,10 +10,9 @@ import json
 import numpy as np
 import pytest
 
-from piest_jax._cli import main
 from piest_jax._cli import compensate as compensate_cmd
 from piest_jax._cli import fit as fit_cmd
-from piest_jax._cli import memory
+from piest_jax._cli import main, memory
 from piest_jax._cli import montecarlo as montecarlo_cmd
 from piest_jax._cli import simulate as simulate_cmd
 from piest_jax._diagnosis import diagnose as _diagnose
@@ -99,20 +98,23 @@ CASES = [
     # degenerate signals
     (["simulate", "--frequency", "0"], "--frequency 0 Hz: a frequency must be positive (0 Hz gives a constant input"),
     (["simulate", "--frequency=-2"], "--frequency -2 Hz: a frequency must be positive"),
-    (["simulate", "--frequency", "500"], "--frequency 500 Hz is at or above the Nyquist frequency 500 Hz of --dt 0.001"),
+    (["simulate", "--frequency", "500"],
+     "--frequency 500 Hz is at or above the Nyquist frequency 500 Hz of --dt 0.001"),
     (["simulate", "--frequency", "1000"], "at or above the Nyquist frequency"),
     (["simulate", "--input", "triangle", "--frequency", "5", "--dt", "0.1"], "--frequency 5 Hz is at or above"),
     (["simulate", "--input", "multisine", "--amplitude", "1,2", "--frequency", "3,600"], "--frequency 600 Hz"),
     (["simulate", "--input", "chirp", "--frequency", "800"], "--frequency 800 Hz"),
     # seeds and counts out of range, at parse time
-    (["fit", "{rec}", "--seed", "99999999999999999999999"], "argument --seed: a seed is a whole number from 0 to 2^63 - 1"),
+    (["fit", "{rec}", "--seed", "99999999999999999999999"],
+     "argument --seed: a seed is a whole number from 0 to 2^63 - 1"),
     (["montecarlo", "--seed", "99999999999999999999999"], "argument --seed: a seed is a whole number"),
     (["montecarlo", "--seed", "-1"], "argument --seed: a seed is a whole number"),
     (["fit", "{rec}", "--starts", "1_000"], "argument --starts: expected a whole number, got '1_000'"),
     (["montecarlo", "--inputs", "99999999999"], "argument --inputs: must be at most 2147483647"),
     (["montecarlo", "--samples", "\u0661\u0662"], "argument --samples: expected a whole number"),
     # sizes checked before the work
-    (["fit", "{rec}", "--starts", "1000000"], "--starts 1000000 on {rec} (300 samples, up to 40 parameters) needs about"),
+    (["fit", "{rec}", "--starts", "1000000"],
+     "--starts 1000000 on {rec} (300 samples, up to 40 parameters) needs about"),
     (["montecarlo", "--samples", "1000000000"], "--samples 1000000000 with --plays 10 needs about"),
     (["montecarlo", "--plays", "100000"], "--samples 5000 with --plays 100000 needs about"),
     (["estimate", "{rec}", "--plays", "100000"], "100001 weights (100000 plays) on {rec} needs about"),
@@ -129,7 +131,8 @@ def test_each_case_is_refused_in_one_line(argv, needle, files, capsys):
     _refused(capsys, argv, needle.format(**files), files["dir"] / "o")
 
 
-@pytest.mark.parametrize("command", ["simulate", "fit", "diagnose", "compensate", "estimate", "montecarlo", "reproduce"])
+@pytest.mark.parametrize("command", ["simulate", "fit", "diagnose", "compensate", "estimate", "montecarlo",
+                                     "reproduce"])
 def test_an_empty_out_is_refused(command, files, capsys):
     first = {"simulate": [], "montecarlo": [], "reproduce": ["fig5"], "compensate": [files["model"], files["rec"]]}
     argv = [command, *first.get(command, [files["rec"]])]
