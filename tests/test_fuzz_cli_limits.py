@@ -89,6 +89,9 @@ CASES = [
     (["estimate", "{rec}", "--estimator", "forgetting", "--normalisation", "standard"],
      "--normalisation is a setting of --estimator rls"),
     (["simulate", "--columns", "a,b,c"], "--columns is only used with --input csv"),
+    (["simulate", "--input", "csv", "--csv", "{rec}", "--amplitude", "3"],
+     "--amplitude describes a generated input; --input csv takes t and u from {rec}"),
+    (["simulate", "--input", "csv", "--csv", "{rec}", "--dt", "0.5"], "--dt describes a generated input"),
     # non-finite values named at parse time, before any fit
     (["fit", "{rec}", "--initial-states", "nan"], "argument --initial-states: must be a finite number, got nan"),
     (["fit", "{rec}", "--fit-from", "inf"], "argument --fit-from: must be a finite number, got inf"),

@@ -79,7 +79,7 @@ def _thresholds(args, rec):
         try:
             model = read_json(args.from_fit)
         except (OSError, ValueError) as e:
-            raise CLIError(f"--from-fit {e}") from None
+            raise CLIError(f"--from-fit: cannot read a JSON model ({e})") from None
         try:
             if any(isinstance(v, bool) for k in ("thresholds", "initial_states") for v in model.get(k) or []):
                 raise ValueError

@@ -37,14 +37,14 @@ def add_arguments(p):
     )
     p.add_argument("--csv", metavar="FILE", help="data file whose t and u columns are the input")
     p.add_argument(
-        "--amplitude", type=float_list, default=[10.0], help="amplitude(s); several for multisine"
+        "--amplitude", type=float_list, default=None, help="amplitude(s); several for multisine (default 10)"
     )
     p.add_argument(
-        "--frequency", type=float_list, default=[5.0], help="frequency/ies in Hz (default 5)"
+        "--frequency", type=float_list, default=None, help="frequency/ies in Hz (default 5)"
     )
-    p.add_argument("--offset", type=finite_float, default=0.0, help="constant added to the input")
-    p.add_argument("--duration", type=positive_float, default=1.0, help="seconds (default 1)")
-    p.add_argument("--dt", type=positive_float, default=1e-3, help="sampling step (default 1e-3)")
+    p.add_argument("--offset", type=finite_float, default=None, help="constant added to the input (default 0)")
+    p.add_argument("--duration", type=positive_float, default=None, help="seconds (default 1)")
+    p.add_argument("--dt", type=positive_float, default=None, help="sampling step (default 1e-3)")
     p.add_argument(
         "--thresholds",
         type=float_list,
@@ -66,15 +66,26 @@ def add_arguments(p):
     add_output_options(p, "piest-simulate")
 
 
+# The described input's settings: a CSV input has its own, so giving them there is refused.
+SHAPE_DEFAULTS = {"amplitude": [10.0], "frequency": [5.0], "offset": 0.0, "duration": 1.0, "dt": 1e-3}
+
+
 def _input(args):
     if args.input == "csv":
         if not args.csv:
             raise CLIError("--input csv needs --csv FILE")
+        for name in SHAPE_DEFAULTS:
+            if getattr(args, name) is not None:
+                raise CLIError(f"--{name} describes a generated input; --input csv takes t and u "
+                               f"from {args.csv}")
         rec = load_record(args.csv, resample=args.resample, columns=args.columns)
         return rec.t, rec.u, {"kind": "csv", "file": str(args.csv)}
     for given, name in ((args.csv, "--csv"), (args.columns, "--columns"), (args.resample, "--resample")):
         if given:
             raise CLIError(f"{name} is only used with --input csv, not --input {args.input}")
+    for name, value in SHAPE_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     n = args.duration / args.dt + 1
     if n < 2:
         raise CLIError(f"--dt {args.dt:g} is longer than --duration {args.duration:g}: no signal")
