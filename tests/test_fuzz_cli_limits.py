@@ -192,9 +192,9 @@ def test_estimate_from_fit_refuses_booleans(files, capsys):
 
 
 def test_sizes_against_a_small_machine(files, capsys, monkeypatch):
-    # Against 1 MB of available memory, ordinary requests are refused before any work, naming
+    # Against 512 kB of available memory, ordinary requests are refused before any work, naming
     # what asked for it; the same requests run on the real machine (checked elsewhere).
-    monkeypatch.setattr(memory, "available_bytes", lambda: 2**20)
+    monkeypatch.setattr(memory, "available_bytes", lambda: 2**19)
     big = files["dir"] / "big.json"
     n = 400
     big.write_text(json.dumps({"thresholds": np.linspace(0, 2, n, endpoint=False).tolist(),
@@ -203,6 +203,7 @@ def test_sizes_against_a_small_machine(files, capsys, monkeypatch):
         (["compensate", str(big), files["rec"]], f"{big} (400 plays) on {files['rec']} (300 samples) needs about"),
         (["simulate", "--plays", "200", "--r-max", "1"], "1001 samples x 200 plays needs about"),
         (["fit", files["rec"], "--starts", "64"], "--starts 64 on"),
+        (["diagnose", files["rec"]], f"{files['rec']} (300 samples) needs about"),
     ]
     for argv, needle in cases:
         _refused(capsys, argv, needle, files["dir"] / "o")

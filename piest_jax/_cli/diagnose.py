@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from . import memory
 from . import output as _io
 from .._data.record import load_record
 from .._report import json_text
@@ -72,6 +73,9 @@ def run(args) -> int:
     rec = load_record(args.data, **opts)
     val = load_record(args.validate, **opts) if args.validate else None
     # Refuse unusable records before the (long) search, not after it.
+    n = rec.n_samples + (0 if val is None else val.n_samples)
+    memory.require(memory.diagnose_bytes(n), f"{args.data}{' and ' + args.validate if val else ''} "
+                   f"({n} samples)", "diagnose a shorter part of the record (a few periods suffice)")
     check_record(rec)
     if val is not None:
         check_record(val)

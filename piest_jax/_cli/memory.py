@@ -65,6 +65,12 @@ def bank_bytes(n_samples: int, n_plays: int) -> float:
     return 3.0 * FLOAT * n_samples * n_plays
 
 
+def diagnose_bytes(n_samples: int) -> float:
+    """The diagnosis: its regressors (16 plays and the effects' columns, about 64) over the
+    samples, with the solvers' Jacobians, about six copies."""
+    return 6.0 * FLOAT * 64 * n_samples
+
+
 def rls_bytes(n_weights: int, n_samples: int) -> float:
     """An online estimator: its gain matrix (weights x weights) and workspaces, and the weights'
     trajectory."""
