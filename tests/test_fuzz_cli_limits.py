@@ -196,11 +196,11 @@ def test_sizes_against_a_small_machine(files, capsys, monkeypatch):
     # what asked for it; the same requests run on the real machine (checked elsewhere).
     monkeypatch.setattr(memory, "available_bytes", lambda: 2**19)
     big = files["dir"] / "big.json"
-    n = 400
+    n = 4000
     big.write_text(json.dumps({"thresholds": np.linspace(0, 2, n, endpoint=False).tolist(),
                                "weights": [1.0] * n, "offset": 0.0}))
     cases = [
-        (["compensate", str(big), files["rec"]], f"{big} (400 plays) on {files['rec']} (300 samples) needs about"),
+        (["compensate", str(big), files["rec"]], f"{big} (4000 plays) on {files['rec']} (300 samples) needs about"),
         (["simulate", "--plays", "200", "--r-max", "1"], "1001 samples x 200 plays needs about"),
         (["fit", files["rec"], "--starts", "64"], "--starts 64 on"),
         (["diagnose", files["rec"]], f"{files['rec']} (300 samples) needs about"),

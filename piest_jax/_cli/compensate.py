@@ -98,7 +98,7 @@ def run(args) -> int:
         if not np.isclose(dt, creep.dt, rtol=1e-3):
             raise CLIError(f"{args.desired}: sampled every {dt:g}, but the model's creep was "
                            f"identified at dt = {creep.dt:g}; resample the desired output")
-    memory.require(memory.bank_bytes(len(t), len(r)),
+    memory.require(memory.stream_bytes(len(t), len(r)),
                    f"{args.model} ({len(r)} plays) on {args.desired} ({len(t)} samples)",
                    "use a shorter desired output or a model with fewer plays")
     if args.initial_states is not None:
