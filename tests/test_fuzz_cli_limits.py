@@ -239,3 +239,21 @@ def test_fit_records_the_input_range_it_saw(files, capsys):
                                  "--max-steps", "20", "--quiet", "--out", str(out)], stop=False)
     assert code == 0, err
     assert json.loads((out / "fit.json").read_text())["input_range"] == [float(U.min()), float(U.max())]
+
+
+def test_a_failed_write_names_the_result_not_the_temporary(files, capsys, monkeypatch):
+    # A full disk at the end of a run: one line naming the result file, nothing left behind.
+    import errno
+
+    from piest_jax._cli import output as _io
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(_io.os, "fsync", full)
+    out = files["dir"] / "o"
+    code, o, err = _run(capsys, ["simulate", "--duration", "0.05", "--out", str(out)], stop=False)
+    assert (code, o) == (2, "")
+    assert err == f"piest simulate: error: {out / 'simulate.csv'}: cannot write it (No space left on device); " \
+        "nothing was written\n"
+    assert not out.exists()

@@ -194,7 +194,10 @@ def _umask() -> int:
 
 def _write_temporary(path: Path, write) -> str:
     _FOLDERS.add(path.parent.absolute())
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=path.parent)
+    except OSError as e:
+        raise _named(e, path) from None
     try:
         with os.fdopen(fd, "wb") as f:
             # mkstemp makes the file private (rw-------); results get the permissions any other
@@ -204,10 +207,18 @@ def _write_temporary(path: Path, write) -> str:
             write(f)
             f.flush()
             os.fsync(f.fileno())
+    except OSError as e:
+        _unlink(tmp)
+        raise _named(e, path) from None
     except BaseException:
         _unlink(tmp)
         raise
     return tmp
+
+
+def _named(e: OSError, path: Path) -> OSError:
+    # The error names the result the user asked for, not the hidden temporary file.
+    return OSError(f"{path}: cannot write it ({e.strerror or e}); nothing was written")
 
 
 def _atomic_write(path: Path, write) -> Path:
