@@ -75,3 +75,15 @@ def test_an_estimator_class_instead_of_an_instance_is_named(cls):
         pj.estimate_record(cls, np.asarray(U), np.asarray(U), [0.0, 1.0], dt=1e-3)
     with pytest.raises(ValueError, match="must be an estimator such as ContinuousRLS"):
         pj.estimate("rls", H, U)
+
+
+def test_fit_pi_takes_numpy_integers_for_its_counts():
+    t = np.arange(400) * 1e-3
+    u = np.sin(2 * np.pi * 3 * t) * (1 + 0.5 * np.sin(2 * np.pi * 0.7 * t))
+    y = np.asarray(pj.PIOperator([0.0, 0.3], [1.0, 0.5])(u))
+    kwargs = dict(n_starts=2, max_steps=5, starts_at_once=1, key=jax.random.key(0))
+    a = pj.fit_pi(u, y, 2, **kwargs)
+    b = pj.fit_pi(u, y, np.int64(2), **{k: np.int64(v) if isinstance(v, int) else v for k, v in kwargs.items()})
+    np.testing.assert_array_equal(np.asarray(a.thresholds), np.asarray(b.thresholds))
+    with pytest.raises(ValueError, match="`max_steps` must be a positive whole number, got 2.5"):
+        pj.fit_pi(u, y, 2, max_steps=2.5)

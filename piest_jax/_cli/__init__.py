@@ -11,6 +11,7 @@ from pathlib import Path
 
 import importlib
 
+from . import interrupt as _interrupt
 from . import output as _io
 from ._common import CLIError
 
@@ -121,7 +122,7 @@ def _chosen(argv) -> str:
     return next((a for a in argv if not a.startswith("-")), "")
 
 
-def main(argv=None, *, _guarded: bool = False) -> int:
+def main(argv=None) -> int:
     """Run the `piest` command line in this process (`piest_jax.run_cli`).
 
     **Arguments:** `argv`, the words after `piest`, e.g. `["fit", "data.csv", "--out", "fitted"]`
@@ -146,7 +147,7 @@ def main(argv=None, *, _guarded: bool = False) -> int:
     jax.config.update("jax_enable_x64", True)
     # Under the `piest` entry (`interrupt.entry`) a signal ends the process at once; in someone
     # else's program SIGTERM unwinds as an exception, as Ctrl-C does.
-    in_main_thread = threading.current_thread() is threading.main_thread() and not _guarded
+    in_main_thread = threading.current_thread() is threading.main_thread() and not _interrupt.guarding()
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main_thread else None
     try:
         _protect_inputs(args)

@@ -30,6 +30,12 @@ from . import output as _io
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+_GUARDING = []  # non-empty while a guard is installed
+
+
+def guarding() -> bool:
+    """Whether a [`guard`][] is installed: signals then end the process, not unwind."""
+    return bool(_GUARDING)
 
 
 def _end(command: str, signum: int) -> None:
@@ -79,9 +85,11 @@ def guard(command: str):
 
     watcher = threading.Thread(target=watch, name="piest-signal-watcher", daemon=True)
     watcher.start()
+    _GUARDING.append(command)
     try:
         yield
     finally:
+        _GUARDING.pop()
         for sig, handler in previous.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         signal.set_wakeup_fd(previous_fd)
@@ -100,5 +108,5 @@ def entry() -> None:
     argv = sys.argv[1:]
     command = next((a for a in argv if not a.startswith("-")), "")
     with guard(command):
-        code = main(argv, _guarded=True)
+        code = main(argv)
     sys.exit(code)
