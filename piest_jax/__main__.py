@@ -1,8 +1,6 @@
 """`python -m piest_jax COMMAND ...` runs the `piest` command line."""
 
-import sys
-
-from ._cli import main
+from ._cli import entry
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -16,6 +16,28 @@ def is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def is_whole(v) -> bool:
+    """True for a Python or NumPy integer (not a bool): what a count or a length may be."""
+    return isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)
+
+
+def prng_key(key, name: str = "key"):
+    """A new-style PRNG key from either kind JAX users hold: `jax.random.key(0)` (returned as it
+    is) or the legacy `jax.random.PRNGKey(0)` (uint32 (2,), wrapped with the default
+    implementation, so both give the same numbers)."""
+    if isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        if key.shape != ():
+            raise ValueError(f"`{name}` must be one PRNG key, got an array of keys of shape {key.shape}")
+        return key
+    arr = np.asarray(key) if is_concrete(key) else key
+    if getattr(arr, "dtype", None) == np.uint32 and getattr(arr, "shape", None) == (2,):
+        return jax.random.wrap_key_data(arr)
+    raise ValueError(
+        f"`{name}` must be a PRNG key such as jax.random.key(0) or jax.random.PRNGKey(0), got "
+        f"{type(key).__name__} {getattr(key, 'dtype', '')}{list(getattr(key, 'shape', ()))}"
+    )
+
+
 def as_float_array(x, name: str) -> Array:
     """Convert to a floating JAX array, keeping float64 when it is enabled and given."""
     arr = jnp.asarray(x)

@@ -137,7 +137,8 @@ def test_cli_writes_the_report(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "extra, match",
-    [(["--thresholds", "1,0.5"], "start at 0 and increase"), (["--forgetting", "2"], "(0, 1]"),
+    [(["--thresholds", "1,0.5"], "start at 0 and increase"), (["--estimator", "forgetting", "--forgetting", "2"], "(0, 1]"),
+     (["--forgetting", "0.5"], "--forgetting is a setting of --estimator forgetting, not of --estimator rls"),
      (["--start", "-1"], "time >= 0"), (["--start", "99"], "fewer than 2 samples"),
      (["--from-fit", "nope.json"], "cannot read"), (["--window", "1000"], "--window")],
 )

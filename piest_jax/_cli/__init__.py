@@ -11,6 +11,7 @@ from pathlib import Path
 
 import importlib
 
+from . import interrupt as _interrupt
 from . import output as _io
 from ._common import CLIError
 
@@ -144,7 +145,9 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    in_main_thread = threading.current_thread() is threading.main_thread()
+    # Under the `piest` entry (`interrupt.entry`) a signal ends the process at once; in someone
+    # else's program SIGTERM unwinds as an exception, as Ctrl-C does.
+    in_main_thread = threading.current_thread() is threading.main_thread() and not _interrupt.guarding()
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main_thread else None
     try:
         _protect_inputs(args)
@@ -224,5 +227,12 @@ def _internal(args, e: Exception) -> int:
     return 1
 
 
+def entry() -> None:
+    """The `piest` console script (see `interrupt.py`)."""
+    from .interrupt import entry as run
+
+    run()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

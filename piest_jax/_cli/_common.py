@@ -11,6 +11,7 @@ def add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
     p.add_argument(
         "--out",
         default=default_out,
+        type=out_dir,
         metavar="DIR",
         help=f"folder for the results (default: {default_out}); created if missing",
     )
@@ -24,13 +25,48 @@ def add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
     )
 
 
+# Counts beyond this overflow 32-bit indices (and every memory); seeds are 63-bit.
+MAX_COUNT = 2**31 - 1
+MAX_SEED = 2**63 - 1
+
+
+def out_dir(text: str) -> str:
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder name, got an empty one")
+    return text
+
+
+def _whole(text: str) -> int:
+    # Digits only (int() would take `1_000` and other scripts' digits), at most 30 of them.
+    body = text.strip().removeprefix("-").removeprefix("+")
+    if not (body.isascii() and body.isdigit()) or len(body) > 30:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
+    return int(text)
+
+
 def positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    v = _whole(text)
     if v <= 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {v}")
+    if v > MAX_COUNT:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT}, got {v}")
+    return v
+
+
+def seed(text: str) -> int:
+    v = _whole(text)
+    if not 0 <= v <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"a seed is a whole number from 0 to 2^63 - 1, got {text}")
+    return v
+
+
+def finite_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return v
 
 
@@ -56,3 +92,31 @@ def float_list(text: str) -> list[float]:
     if any(v != v or v in (float("inf"), float("-inf")) for v in vals):
         raise argparse.ArgumentTypeError(f"NaN or inf in {text!r}")
     return vals
+
+
+def columns_arg(count: int, example: str):
+    """A parser of `count` distinct comma-separated column names (matched as the loader does)."""
+
+    def parse(text: str) -> tuple[str, ...]:
+        from .._data.columns import base_name
+
+        names = tuple(c.strip() for c in text.split(","))
+        if len(names) != count or not all(names) or len({base_name(n) for n in names}) != count:
+            raise argparse.ArgumentTypeError(
+                f"expected {count} distinct column names such as {example}, got {text!r}"
+            )
+        return names
+
+    return parse
+
+
+def add_record_options(p: argparse.ArgumentParser) -> None:
+    """--columns and --resample, for every command that reads a (t, u, y) record."""
+    p.add_argument(
+        "--columns", type=columns_arg(3, "time_s,voltage_V,displacement_um"), metavar="TIME,INPUT,OUTPUT",
+        help="the data file's names of its time, input and output columns (default t,u,y; "
+        "names match without case or a unit in brackets: `t [s]` is t)",
+    )
+    p.add_argument(
+        "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
+    )

@@ -1,13 +1,17 @@
 """`piest compensate`: the feedforward input that cancels a fitted model's hysteresis."""
 
+import sys
+
 import numpy as np
 
+from . import memory
 from . import output as _io
 from .._identification.compensate import admissible_states, feedforward
+from .._data.columns import base_name
 from .._data.record import load_columns
 from .._models.composite import HysteresisModel
 from .._operators.pi import PIOperator
-from ._common import CLIError, add_output_options
+from ._common import CLIError, add_output_options, columns_arg, finite_float
 
 NAME = "compensate"
 DESCRIPTION = """\
@@ -20,8 +24,10 @@ model's dt) (a header naming `t` and the column given by --column, default `desi
 Writes
   DIR/compensate.csv    columns t, desired, u (the feedforward input) and model (the model's
                         output for u, equal to desired up to rounding)
-  DIR/compensate.json   the model file, the plays' initial states used, the input's range and
-                        the largest |model - desired|
+  DIR/compensate.json   the model file, the plays' initial states used, the input's range,
+                        the largest |model - desired|, and the model's fitted input range with
+                        the fraction of the input outside it (also noted on stderr; absent when
+                        the model file does not say)
   DIR/compensate.png    desired output and feedforward input over time, and u against desired
 The model must be invertible: r_1 = 0 and positive cumulative weights (fit without
 --signed-weights to guarantee it).
@@ -36,8 +42,12 @@ def add_arguments(p):
     p.add_argument("desired", metavar="DESIRED.csv", help="CSV with t and the desired output")
     p.add_argument("--column", default=None, help="the desired-output column (default desired, y)")
     p.add_argument(
+        "--columns", type=columns_arg(2, "time_s,target_um"), metavar="TIME,DESIRED",
+        help="DESIRED.csv's names of its time and desired-output columns (instead of t and --column)",
+    )
+    p.add_argument(
         "--initial-states",
-        type=float,
+        type=finite_float,
         default=None,
         metavar="X",
         help="the plays' state at the start (default: the model's, made admissible)",
@@ -61,9 +71,14 @@ def load_model(path):
     return (*(np.asarray(a) for a in (op.thresholds, op.weights, c, op.initial_states)), creep)
 
 
-def load_desired(path, column):
+def load_desired(path, column, columns=None):
     """Time and desired output from a CSV with a header row (read by `load_columns`, so errors
-    name the file, row and problem)."""
+    name the file, row and problem); `columns`, the file's names for the two (default `t` and
+    `column`)."""
+    if columns is not None:
+        time, col = (base_name(c) for c in columns)
+        cols = load_columns(path, (time, col), time=time)
+        return cols[time], cols[col], col
     names = load_columns(path, ("t",))
     col = (column or ("desired" if "desired" in names else "y")).lower()
     if col not in names:
@@ -75,12 +90,17 @@ def load_desired(path, column):
 def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     r, w, c, x0, creep = load_model(args.model)
-    t, yd, col = load_desired(args.desired, args.column)
+    if args.columns is not None and args.column is not None:
+        raise CLIError("give either --column or --columns, not both")
+    t, yd, col = load_desired(args.desired, args.column, args.columns)
     if creep is not None and len(t) > 1:
         dt = float(np.median(np.diff(t)))
         if not np.isclose(dt, creep.dt, rtol=1e-3):
             raise CLIError(f"{args.desired}: sampled every {dt:g}, but the model's creep was "
                            f"identified at dt = {creep.dt:g}; resample the desired output")
+    memory.require(memory.stream_bytes(len(t), len(r)),
+                   f"{args.model} ({len(r)} plays) on {args.desired} ({len(t)} samples)",
+                   "use a shorter desired output or a model with fewer plays")
     if args.initial_states is not None:
         x0 = np.full(r.shape, args.initial_states)
     try:
@@ -106,12 +126,31 @@ def run(args) -> int:
         "u_min": float(u.min()),
         "u_max": float(u.max()),
         "max_model_error": float(np.max(np.abs(ym - yd))),
-    }
+    } | _outside(args.model, u)
     written.append(_io.write_json(out / "compensate.json", summary))
     written.append(_io.save_figure(_figure(t, yd, u), out / "compensate.png", dpi=110))
     for p in written:
         print(p)
     return 0
+
+
+def _outside(path, u) -> dict:
+    """The fitted input range (fit.json's `input_range`) and the fraction of the feedforward
+    input outside it, where the model is extrapolated; a note on stderr when there is any."""
+    from .._identification.model_file import read_json
+
+    rng = read_json(path).get("input_range")
+    ok = (isinstance(rng, list) and len(rng) == 2
+          and all(isinstance(v, int | float) and not isinstance(v, bool) for v in rng))
+    if not ok or not all(np.isfinite(rng)) or rng[0] > rng[1]:
+        return {}  # the model file does not say (not written by `piest fit`, or an older one)
+    lo, hi = float(rng[0]), float(rng[1])
+    frac = float(np.mean((u < lo) | (u > hi)))
+    if frac > 0:
+        print(f"piest compensate: note: {frac:.1%} of the feedforward input lies outside the input "
+              f"range the model was fitted on [{lo:.4g}, {hi:.4g}] (u from {u.min():.4g} to "
+              f"{u.max():.4g}); the model is extrapolated there", file=sys.stderr)
+    return {"fitted_input_range": [lo, hi], "fraction_outside_fitted_range": frac}
 
 
 def _figure(t, yd, u):

@@ -2,11 +2,12 @@
 
 import numpy as np
 
+from . import memory
+from . import output as _io
 from .._data.record import load_record
 from .._diagnosis.effects import EFFECT, EFFECTS, RECORD_SPECIFIC
 from .._report import json_text
-from . import output as _io
-from ._common import CLIError, add_output_options
+from ._common import CLIError, add_output_options, add_record_options
 
 NAME = "diagnose"
 DESCRIPTION = """\
@@ -59,6 +60,7 @@ def add_arguments(p):
         "--json", action="store_true",
         help="print the report (report.json's text) instead of the paths written",
     )
+    add_record_options(p)
     add_output_options(p, "piest-diagnose")
 
 
@@ -73,9 +75,13 @@ def run(args) -> int:
     if args.max_effects < 1:
         raise CLIError(f"--max-effects must be at least 1, got {args.max_effects}")
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    rec = load_record(args.data)
-    val = load_record(args.validate) if args.validate else None
+    opts = dict(resample=args.resample, columns=args.columns)
+    rec = load_record(args.data, **opts)
+    val = load_record(args.validate, **opts) if args.validate else None
     # Refuse unusable records before the (long) search, not after it.
+    n = rec.n_samples + (0 if val is None else val.n_samples)
+    memory.require(memory.diagnose_bytes(n), f"{args.data}{' and ' + args.validate if val else ''} "
+                   f"({n} samples)", "diagnose a shorter part of the record (a few periods suffice)")
     check_record(rec)
     if val is not None:
         check_record(val)

@@ -1,12 +1,12 @@
 """`piest estimate`: the paper's online estimators on a measured record, streamed in chunks."""
 
-import json
 
 import numpy as np
 
+from . import memory
 from . import output as _io
 from .._data.record import load_record
-from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+from ._common import CLIError, add_output_options, add_record_options, float_list, positive_float, positive_int
 
 NAME = "estimate"
 DESCRIPTION = """\
@@ -53,16 +53,17 @@ def add_arguments(p):
     src.add_argument("--from-fit", metavar="FIT.json", help="thresholds and initial states of a `piest fit` model")
     src.add_argument("--plays", type=positive_int, default=20, help="uniform thresholds (default 20)")
     p.add_argument("--estimator", choices=ESTIMATORS, default="rls", help="default: rls (the paper's)")
-    p.add_argument("--P0", type=positive_float, default=1e8,
+    p.add_argument("--P0", type=positive_float, default=None,
                    help="initial gain P0·I, for data scaled to magnitude one (default 1e8)")
-    p.add_argument("--normalisation", choices=("paper", "standard"), default="paper",
+    p.add_argument("--normalisation", choices=("paper", "standard"), default=None,
                    help="rls: paper (m = 1 + h'h, divide by m^2; default) or standard (m^2 = 1 + h'h)")
-    p.add_argument("--forgetting", type=positive_float, default=1.0, help="forgetting factor in (0, 1] (default 1)")
-    p.add_argument("--gain", type=positive_float, default=1.0, help="gradient gain (default 1)")
+    p.add_argument("--forgetting", type=positive_float, default=None, help="forgetting factor in (0, 1] (default 1)")
+    p.add_argument("--gain", type=positive_float, default=None, help="gradient gain (default 1)")
     p.add_argument("--no-offset", action="store_true", help="do not estimate an output offset")
     p.add_argument("--start", type=str, default="auto", help="'auto' (default), or a time in seconds")
     p.add_argument("--window", type=positive_float, metavar="SECONDS",
                    help="PE window length (default: a tenth of the estimated part)")
+    add_record_options(p)
     add_output_options(p, "piest-estimate")
 
 
@@ -73,16 +74,19 @@ def _thresholds(args, rec):
             raise CLIError("--thresholds must start at 0 and increase strictly, e.g. 0,1,2")
         return r, None
     if args.from_fit is not None:
+        from .._identification.model_file import read_json
+
         try:
-            with open(args.from_fit) as f:
-                model = json.load(f)
+            model = read_json(args.from_fit)
         except (OSError, ValueError) as e:
-            raise CLIError(f"--from-fit {args.from_fit}: cannot read a JSON model ({e})") from None
+            raise CLIError(f"--from-fit: cannot read a JSON model ({e})") from None
         try:
+            if any(isinstance(v, bool) for k in ("thresholds", "initial_states") for v in model.get(k) or []):
+                raise ValueError
             r = np.asarray(model["thresholds"], float)
             x0 = model.get("initial_states")
             x0 = None if x0 is None else np.asarray(x0, float)
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, AttributeError):
             raise CLIError(f"--from-fit {args.from_fit}: no numeric `thresholds` in it") from None
         if r.ndim != 1 or r.size < 1 or not np.all(np.isfinite(r)) or (x0 is not None and x0.shape != r.shape):
             raise CLIError(f"--from-fit {args.from_fit}: `thresholds` and `initial_states` do not match")
@@ -96,11 +100,22 @@ def run(args) -> int:
 
     from .._estimation.online import estimate_record, settled_start
 
+    # Each setting belongs to some estimators; one given to another would be ignored.
+    used = {"P0": ("rls", "forgetting"), "normalisation": ("rls",), "forgetting": ("forgetting",),
+            "gain": ("gradient",)}
+    for name, estimators in used.items():
+        if getattr(args, name) is not None and args.estimator not in estimators:
+            raise CLIError(f"--{name} is a setting of --estimator {' or '.join(estimators)}, "
+                           f"not of --estimator {args.estimator}")
+    defaults = {"P0": 1e8, "normalisation": "paper", "forgetting": 1.0, "gain": 1.0}
+    for name, value in defaults.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     if args.forgetting > 1:
         raise CLIError(f"--forgetting must be in (0, 1], got {args.forgetting}")
     start = _start(args.start)
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    rec = load_record(args.data)
+    rec = load_record(args.data, resample=args.resample, columns=args.columns)
     r, x0 = _thresholds(args, rec)
     if args.estimator == "rls":
         est = pj.ContinuousRLS(args.P0, rec.dt, normalisation=args.normalisation)
@@ -117,6 +132,12 @@ def run(args) -> int:
     window = None if args.window is None else int(round(args.window / rec.dt))
     if window is not None and not 2 <= window <= rec.n_samples - k0:
         raise CLIError(f"--window {args.window} s is not between 2 samples and the estimated part of the record")
+    from .._estimation.online import DEFAULT_CHUNK
+
+    m = len(r) + (not args.no_offset)
+    block = min(rec.n_samples, max(DEFAULT_CHUNK, window or (rec.n_samples - k0) // 10))
+    memory.require(memory.rls_bytes(m, rec.n_samples) + memory.bank_bytes(block, m),
+                   f"{m} weights ({len(r)} plays) on {args.data}", "use fewer plays")
     res = estimate_record(est, rec.u, rec.y, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset,
                           window=window, start=k0)
     t0 = float(rec.t[0])

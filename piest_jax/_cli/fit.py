@@ -5,6 +5,7 @@ import sys
 
 import numpy as np
 
+from . import memory
 from . import output as _io
 from .._data.record import load_record
 from .._identification.compare import compare
@@ -12,7 +13,10 @@ from .._identification.fit import SOLVERS, fit_pi
 from .._identification.model_file import model_keys
 from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select_plays
 from .._identification.model_structure import select_model
-from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+from ._common import (
+    CLIError, add_output_options, add_record_options, finite_float, float_list, positive_float, positive_int,
+    seed,
+)
 
 NAME = "fit"
 DESCRIPTION = """\
@@ -20,6 +24,7 @@ Fit y = sum_j w_j H_{r_j}[u] + sum_k c_k z_k[u] + offset to DATA.csv (header nam
 by least squares through the play scan (Levenberg-Marquardt by default), thresholds included;
 z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. Writes
   DIR/fit.json         model (structure, n_plays, n_lags), thresholds, weights, offset,
+                       input_range (the record's smallest and largest input),
                        initial_states, creep (time_constants, weights, dt, starts_at_rest,
                        initial_states when fitted; absent for plain PI),
                        rmse (over the fitted samples), the solver's result, plays flagged as not
@@ -77,6 +82,8 @@ def _counts(what: str, one: str, example: str):
 plays_list = _counts("numbers of plays", "number of plays", "2,3,4")
 lags_list = _counts("lag counts", "lag count", "1,2,3")
 MODELS = ("auto", "pi", "pi+creep")
+CANDIDATES = (1, 2, 3, 4, 5, 6, 8, 10)
+LAGS = (1, 2, 3)
 
 
 def add_arguments(p):
@@ -87,7 +94,7 @@ def add_arguments(p):
         "pi+creep: plays and a creep of first-order lags",
     )
     p.add_argument(
-        "--lags", type=lags_list, default=[1, 2, 3], metavar="K[,K...]",
+        "--lags", type=lags_list, default=None, metavar="K[,K...]",
         help="creep lag counts tried (default 1,2,3); one number fixes it",
     )
     p.add_argument(
@@ -104,18 +111,19 @@ def add_arguments(p):
     )
     p.add_argument("--validate", metavar="VAL.csv", help="a second record to evaluate the fit on")
     p.add_argument("--solver", choices=SOLVERS, default="lm", help="lm (default), gn or bfgs")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the random starts (default 0)")
     p.add_argument("--starts", type=positive_int, default=4, help="starts solved at once (default 4)")
     p.add_argument(
         "--candidates",
         type=plays_list,
-        default=[1, 2, 3, 4, 5, 6, 8, 10],
+        default=None,
         help="numbers of plays tried by --plays auto (default 1,2,3,4,5,6,8,10)",
     )
-    p.add_argument("--criterion", choices=CRITERIA, default="holdout", help="for --plays auto")
+    p.add_argument("--criterion", choices=CRITERIA, default=None,
+                   help="how --plays auto chooses: holdout (default) or bic (with --model pi)")
     p.add_argument(
         "--initial-states",
-        type=float,
+        type=finite_float,
         default=None,
         metavar="X",
         help="the plays' state before each record (default: each record's first input)",
@@ -130,13 +138,11 @@ def add_arguments(p):
     p.add_argument("--max-steps", type=positive_int, default=100, help="solver steps (default 100)")
     p.add_argument(
         "--fit-from",
-        type=float,
+        type=finite_float,
         metavar="T",
         help="fit only the samples at time >= T (earlier ones still drive the plays)",
     )
-    p.add_argument(
-        "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
-    )
+    add_record_options(p)
     add_output_options(p, "piest-fit")
 
 
@@ -149,13 +155,17 @@ def run(args) -> int:
 
     if args.fit_initial_states and args.initial_states is not None:
         raise CLIError("give either --initial-states or --fit-initial-states, not both")
+    _refuse_ignored(args)
+    args.candidates = args.candidates or list(CANDIDATES)
+    args.criterion = args.criterion or "holdout"
+    args.lags = args.lags or list(LAGS)
     names = OUTPUTS if args.validate else OUTPUTS[:2]
     out = _io.check_outputs(args.out, names, args.force)
-    rec = load_record(args.data, resample=args.resample)
+    rec = load_record(args.data, resample=args.resample, columns=args.columns)
     if np.ptp(rec.u) == 0:
         raise CLIError(f"{args.data}: the input u is constant ({rec.u[0]:g}): it excites no play, "
                        "so there is nothing to fit")
-    val = load_record(args.validate, resample=args.resample) if args.validate else None
+    val = load_record(args.validate, resample=args.resample, columns=args.columns) if args.validate else None
     mask = None
     if args.fit_from is not None:
         if not np.isfinite(args.fit_from):
@@ -214,6 +224,12 @@ def run(args) -> int:
         # fit below names the shortage.
         fits = [k for k in lag_choices if per_play * (args.plays + k) + 1 <= n_fit]
         lag_choices = fits or lag_choices[:1]
+    n_params = 3 * (max(cands) + max(lag_choices)) + 1
+    memory.require(
+        memory.fit_bytes(rec.n_samples, args.starts, n_params),
+        f"--starts {args.starts} on {args.data} ({rec.n_samples} samples, up to {n_params} parameters)",
+        "use fewer --starts, fewer plays or a shorter record",
+    )
     if args.model == "pi" and args.plays == "auto":
         opts.pop("time_constants0", None)
         sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, quiet=args.quiet, **opts)
@@ -251,6 +267,8 @@ def run(args) -> int:
             "start_rmse": f.start_rmse,
         },
         "input_half_range": 0.5 * float(np.ptp(rec.u)),
+        # Where the model has seen data: `piest compensate` reports inputs outside it.
+        "input_range": [float(rec.u.min()), float(rec.u.max())],
         "n_fitted_samples": n_used,
     }
     if f.creep is not None:
@@ -293,6 +311,20 @@ def run(args) -> int:
     for p in written:
         print(p)
     return 0
+
+
+def _refuse_ignored(args) -> None:
+    """Options that the chosen mode would ignore are refused rather than dropped silently."""
+    if args.plays != "auto":
+        for given, name in ((args.candidates, "--candidates"), (args.criterion, "--criterion")):
+            if given is not None:
+                raise CLIError(f"{name} is used only by --plays auto; --plays {args.plays} fixes the "
+                               "number of plays")
+    if args.lags is not None:
+        if args.model == "pi":
+            raise CLIError("--lags needs --model pi+creep or auto, not --model pi (no creep)")
+        if args.time_constants is not None:
+            raise CLIError("give either --lags or --time-constants (whose count fixes the lags), not both")
 
 
 def _check_time_constants(taus, rec) -> None:

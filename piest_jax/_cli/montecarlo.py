@@ -3,12 +3,13 @@
 import jax
 import numpy as np
 
+from . import memory
 from . import output as _io
 from .._excitation.families import DEFAULT_FAMILIES, FAMILIES
 from .._excitation.map_report import summarise
 from .._excitation.map_settings import make_settings, numerical_tolerance
 from .._excitation.montecarlo import pe_map
-from ._common import CLIError, add_output_options, positive_float, positive_int
+from ._common import CLIError, add_output_options, positive_float, positive_int, seed
 
 NAME = "montecarlo"
 DESCRIPTION = """\
@@ -37,7 +38,7 @@ def add_arguments(p):
     p.add_argument(
         "--samples", type=positive_int, default=5000, help="samples per input T (default 5000)"
     )
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="PRNG seed (default 0)")
     p.add_argument("--plays", type=positive_int, default=10, help="plays per draw (default 10)")
     p.add_argument(
         "--window", type=positive_int, help="PE window T0 in samples (default samples // 5)"
@@ -85,6 +86,10 @@ def run(args) -> int:
     unknown = [f for f in families if f not in FAMILIES]
     if unknown or not families:
         raise CLIError(f"unknown --families {unknown or families}; choose from {list(FAMILIES)}")
+    memory.require(
+        memory.map_bytes(args.samples, args.plays, len(families)),
+        f"--samples {args.samples} with --plays {args.plays}", "use fewer samples or plays",
+    )
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     settings = make_settings(
         n_samples=args.samples,

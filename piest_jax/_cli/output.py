@@ -27,6 +27,12 @@ _TMP_SUFFIX = ".tmp"
 # Debris of a killed writer is removed only after this long, so a slow writer on another machine
 # sharing the folder is never disturbed.
 _DEBRIS_AGE_S = 3600.0
+# Held while a commit renames files; `discard_temporaries` (a signal's last act) waits for it.
+COMMIT_LOCK = threading.Lock()
+# Every folder this process has written a temporary into, and the transactions open now: what a
+# signal's watcher thread (`interrupt.py`) cleans up. (The context variable is per thread.)
+_FOLDERS: set[Path] = set()
+_OPEN: list["OutputTransaction"] = []
 
 
 class OutputTransaction:
@@ -57,7 +63,7 @@ class OutputTransaction:
     def commit(self) -> None:
         """Rename every staged file into place (and remove this command's results of an earlier
         run that this run did not rewrite), shielded from Ctrl-C and `kill`."""
-        with _signals_deferred():
+        with COMMIT_LOCK, _signals_deferred():
             staged, self._staged = self._staged, {}
             stale = [p for p in self._stale if p not in staged]
             self._stale, self._created = [], []
@@ -104,6 +110,7 @@ def output_transaction(*, nonfinite=(), outputs=()):
     """
     tx = OutputTransaction(nonfinite, outputs)
     token = _ACTIVE.set(tx)
+    _OPEN.append(tx)
     try:
         yield tx
     except BaseException:
@@ -112,7 +119,24 @@ def output_transaction(*, nonfinite=(), outputs=()):
     else:
         tx.commit()
     finally:
+        _OPEN.remove(tx)
         _ACTIVE.reset(token)
+
+
+def discard_temporaries() -> None:
+    """Remove every temporary file this process has written and not yet renamed, and the empty
+    folders its open transactions created: what is left to do before the process ends at once
+    on a signal (see `interrupt.py`). Files are found by this process's id in their names, so
+    one whose writing has only begun goes too."""
+    pid = os.getpid()
+    for folder in list(_FOLDERS):
+        with contextlib.suppress(OSError):
+            for p in folder.glob(f".*.{pid}.*{_TMP_SUFFIX}"):
+                _unlink(p)
+    for tx in list(_OPEN):
+        for folder in reversed(tx._created):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 @contextlib.contextmanager
@@ -169,7 +193,11 @@ def _umask() -> int:
 
 
 def _write_temporary(path: Path, write) -> str:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=path.parent)
+    _FOLDERS.add(path.parent.absolute())
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=path.parent)
+    except OSError as e:
+        raise _named(e, path) from None
     try:
         with os.fdopen(fd, "wb") as f:
             # mkstemp makes the file private (rw-------); results get the permissions any other
@@ -179,10 +207,18 @@ def _write_temporary(path: Path, write) -> str:
             write(f)
             f.flush()
             os.fsync(f.fileno())
+    except OSError as e:
+        _unlink(tmp)
+        raise _named(e, path) from None
     except BaseException:
         _unlink(tmp)
         raise
     return tmp
+
+
+def _named(e: OSError, path: Path) -> OSError:
+    # The error names the result the user asked for, not the hidden temporary file.
+    return OSError(f"{path}: cannot write it ({e.strerror or e}); nothing was written")
 
 
 def _atomic_write(path: Path, write) -> Path:
@@ -329,6 +365,16 @@ def check_outputs(out_dir, names, force: bool) -> Path:
         raise OSError(f"--out {out}: cannot create the folder ({e.strerror or e})") from None
     if tx is not None:
         tx._created.extend(reversed(missing))
+        missing = []
+    # Writable? Found now, before the computation, not when the results are ready.
+    _FOLDERS.add(out.absolute())
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".piest-probe.{os.getpid()}.", suffix=_TMP_SUFFIX, dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise OSError(f"--out {out}: cannot write there ({e.strerror or e})") from None
+    if tx is not None:
         tx._stale.extend(out / n for n in others if (out / n).exists())
     _remove_debris(out, names + others)
     return out

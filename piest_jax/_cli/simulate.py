@@ -2,11 +2,14 @@
 
 import numpy as np
 
+from . import memory
 from . import output as _io
 from .._excitation import signals as _signals
 from .._data.record import load_record
 from .._operators.pi import PIOperator
-from ._common import CLIError, add_output_options, float_list, positive_float, positive_int
+from ._common import (
+    CLIError, add_output_options, add_record_options, finite_float, float_list, positive_float, positive_int,
+)
 
 NAME = "simulate"
 DESCRIPTION = """\
@@ -34,14 +37,14 @@ def add_arguments(p):
     )
     p.add_argument("--csv", metavar="FILE", help="data file whose t and u columns are the input")
     p.add_argument(
-        "--amplitude", type=float_list, default=[10.0], help="amplitude(s); several for multisine"
+        "--amplitude", type=float_list, default=None, help="amplitude(s); several for multisine (default 10)"
     )
     p.add_argument(
-        "--frequency", type=float_list, default=[5.0], help="frequency/ies in Hz (default 5)"
+        "--frequency", type=float_list, default=None, help="frequency/ies in Hz (default 5)"
     )
-    p.add_argument("--offset", type=float, default=0.0, help="constant added to the input")
-    p.add_argument("--duration", type=positive_float, default=1.0, help="seconds (default 1)")
-    p.add_argument("--dt", type=positive_float, default=1e-3, help="sampling step (default 1e-3)")
+    p.add_argument("--offset", type=finite_float, default=None, help="constant added to the input (default 0)")
+    p.add_argument("--duration", type=positive_float, default=None, help="seconds (default 1)")
+    p.add_argument("--dt", type=positive_float, default=None, help="sampling step (default 1e-3)")
     p.add_argument(
         "--thresholds",
         type=float_list,
@@ -59,17 +62,30 @@ def add_arguments(p):
         default=[0.0],
         help="the plays' initial states: one value for all, or one per play (default 0)",
     )
+    add_record_options(p)
     add_output_options(p, "piest-simulate")
+
+
+# The described input's settings: a CSV input has its own, so giving them there is refused.
+SHAPE_DEFAULTS = {"amplitude": [10.0], "frequency": [5.0], "offset": 0.0, "duration": 1.0, "dt": 1e-3}
 
 
 def _input(args):
     if args.input == "csv":
         if not args.csv:
             raise CLIError("--input csv needs --csv FILE")
-        rec = load_record(args.csv)
+        for name in SHAPE_DEFAULTS:
+            if getattr(args, name) is not None:
+                raise CLIError(f"--{name} describes a generated input; --input csv takes t and u "
+                               f"from {args.csv}")
+        rec = load_record(args.csv, resample=args.resample, columns=args.columns)
         return rec.t, rec.u, {"kind": "csv", "file": str(args.csv)}
-    if args.csv:
-        raise CLIError(f"--csv is only used with --input csv, not --input {args.input}")
+    for given, name in ((args.csv, "--csv"), (args.columns, "--columns"), (args.resample, "--resample")):
+        if given:
+            raise CLIError(f"{name} is only used with --input csv, not --input {args.input}")
+    for name, value in SHAPE_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     n = args.duration / args.dt + 1
     if n < 2:
         raise CLIError(f"--dt {args.dt:g} is longer than --duration {args.duration:g}: no signal")
@@ -80,6 +96,7 @@ def _input(args):
         )
     t = np.asarray(_signals.time_grid(args.duration, args.dt))
     a, f = args.amplitude, args.frequency
+    _check_frequencies(f, args.dt)
     if args.input == "multisine":
         if len(a) != len(f):
             raise CLIError(f"multisine: {len(a)} amplitudes but {len(f)} frequencies")
@@ -95,6 +112,20 @@ def _input(args):
     desc = {"kind": args.input, "amplitude": a, "frequency": f, "offset": args.offset}
     desc.update(duration=args.duration, dt=args.dt)
     return t, np.asarray(u), desc
+
+
+def _check_frequencies(freqs, dt) -> None:
+    """A sine at 0 Hz, or at or above the Nyquist frequency 1 / (2 dt), is sampled as a constant
+    (all zeros at 1 / dt) or an alias: refused rather than simulated."""
+    nyquist = 0.5 / dt
+    for f in freqs:
+        if not f > 0:
+            zero = " (0 Hz gives a constant input; --offset sets one)" if f == 0 else ""
+            raise CLIError(f"--frequency {f:g} Hz: a frequency must be positive{zero}")
+        if f >= nyquist:
+            raise CLIError(f"--frequency {f:g} Hz is at or above the Nyquist frequency {nyquist:g} Hz "
+                           f"of --dt {dt:g}: the samples would show an alias, or nothing at all; "
+                           "lower --frequency or --dt")
 
 
 def _operator(args):
@@ -129,6 +160,8 @@ def run(args) -> int:
             f"{len(t)} samples x {op.n_plays} plays is more than the {MAX_VALUES:.0e} values "
             "simulate.csv may hold; use fewer plays or samples"
         )
+    memory.require(memory.bank_bytes(len(t), op.n_plays), f"{len(t)} samples x {op.n_plays} plays",
+                   "use fewer plays or samples")
     H = np.asarray(op.regressor(u))
     y = np.asarray(op(u))
     for name, v in (("input u", u), ("output y", y), ("play outputs", H)):

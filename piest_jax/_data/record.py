@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .columns import base_name, column_names, to_number
+
 MIN_SAMPLES = 8
 _DELIMITERS = (",", ";", "\t")
 _HEADER_SEARCH_LINES = 200
@@ -138,10 +140,10 @@ def _header_candidates(lines):
         if not stripped or stripped.startswith("#"):
             continue
         delim = max(_DELIMITERS, key=stripped.count)
-        yield i, delim, [c.strip().strip('"').strip("'").lower() for c in stripped.split(delim)]
+        yield i, delim, [base_name(c) for c in stripped.split(delim)]
 
 
-def _find_header(lines, source, required=("t", "u", "y")):
+def _find_header(lines, source, required=("t", "u", "y"), hint=""):
     for i, delim, names in _header_candidates(lines):
         if set(required) <= set(names):
             return i, delim, names
@@ -154,23 +156,19 @@ def _find_header(lines, source, required=("t", "u", "y")):
             missing = [c for c in required if c not in names]
             _fail(
                 source,
-                f"missing column(s) {', '.join(missing)}: the header has {', '.join(names)}",
+                f"missing column(s) {', '.join(missing)}: the header has {', '.join(names)}{hint}",
                 i + 1,
             )
     listed = ", ".join(required[:-1]) + f" and {required[-1]}" if len(required) > 1 else required[0]
     _fail(
         source,
         f"no header row naming the column{'s' * (len(required) > 1)} {listed} was found "
-        f"(first line: {first[:80]!r}); a header such as `{','.join(required)}` is required",
+        f"(first line: {first[:80]!r}); a header such as `{','.join(required)}` is required{hint}",
     )
 
 
 def _is_number(text):
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+    return to_number(text) is not None
 
 
 def _parse_rows(lines, start, delim, names, source, *, trailing=False):
@@ -190,7 +188,8 @@ def _parse_rows(lines, start, delim, names, source, *, trailing=False):
     usecols = range(ncol) if trailing else None
     try:
         # loadtxt skips the same blank and `#` lines as `rows` does.
-        data = np.loadtxt(lines[start:], delimiter=delim, ndmin=2, usecols=usecols, comments="#")
+        # Its parser reads what `to_number` reads: ASCII literals, quoted or not.
+        data = np.loadtxt(lines[start:], delimiter=delim, ndmin=2, usecols=usecols, comments="#", quotechar='"')
         if data.shape == (rows.size, ncol):
             return data, rows
     except ValueError:
@@ -206,10 +205,10 @@ def _parse_rows(lines, start, delim, names, source, *, trailing=False):
             _fail(source, f"expected {ncol} cells as in the header, found {len(cells)}", i + 1)
         vals = []
         for j, c in enumerate(cells):
-            try:
-                vals.append(float(c))
-            except ValueError:
+            v = to_number(c)
+            if v is None:
                 _fail(source, f"cell {j + 1} is not a number: {c[:40]!r} (column `{names[j]}`)", i + 1)
+            vals.append(v)
         values.append(vals)
     return np.asarray(values, dtype=np.float64), [i + 1 for i, _ in body]
 
@@ -265,11 +264,14 @@ def load_record(
     min_samples: int = MIN_SAMPLES,
     dt_tolerance: float = 1e-3,
     resample: bool = False,
+    columns=None,
 ) -> Record:
     """Read a measured record from a CSV (header naming `t,u,y`) or an NPZ (arrays `t`, `u`, `y`).
 
     Lines before the header (instrument preamble) and lines starting with `#` are skipped; extra
-    columns are kept in `Record.extras`.
+    columns are kept in `Record.extras`. Header names match without case, quotes or a unit in
+    brackets or parentheses (`t [s]` is `t`); quoted numbers are read; `1_000` and digits of
+    other scripts are not numbers.
 
     **Arguments:**
 
@@ -277,16 +279,25 @@ def load_record(
     - `min_samples`: fewer samples than this are rejected.
     - `dt_tolerance`: largest relative deviation of a time step from the median step.
     - `resample`: interpolate linearly onto a uniform grid instead of rejecting non-uniform time.
+    - `columns`: the names of the file's time, input and output columns, e.g.
+      `("time_s", "voltage_V", "displacement_um")` or `"time_s,voltage_V,displacement_um"`
+      (default: `t`, `u`, `y`); they become the record's `t`, `u`, `y`.
 
     **Returns:** a [`Record`][]. Raises [`DataError`][] (a `ValueError`) naming the file, the row
     where it applies, and the problem: missing columns, non-numeric cells, NaN/inf, too few
     samples, time not strictly increasing, non-uniform sampling, mismatched lengths.
     """
     path, source = _existing(path)
+    names = column_names(columns, source)
     opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample)
     if path.suffix.lower() == ".npz":
-        return _load_npz(path, source, **opts)
-    cols, rows = _read_csv(path, source, ("t", "u", "y"))
+        return _load_npz(path, source, names, **opts)
+    if names is None:
+        hint = "; or name the file's columns with columns= (CLI: --columns TIME,INPUT,OUTPUT)"
+        cols, rows = _read_csv(path, source, ("t", "u", "y"), hint)
+    else:
+        cols, rows = _read_csv(path, source, names)
+        cols = _renamed(cols, names)
     t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
     t, u, y, extras = _validate(t, u, y, cols, source, rows, **opts)
     return Record(t, u, y, extras, source)
@@ -305,7 +316,14 @@ def _existing(path):
     return path, source
 
 
-def _read_csv(path, source, required):
+def _renamed(cols, names):
+    """The columns `names` as t, u, y (in that order); the others keep their names."""
+    chosen = {k: cols.pop(n) for k, n in zip(("t", "u", "y"), names)}
+    # A column of the file named t, u or y that was not chosen would shadow the chosen one.
+    return chosen | {k: v for k, v in cols.items() if k not in chosen}
+
+
+def _read_csv(path, source, required, hint=""):
     """Columns by (lower-case) name and the file's line number of each data row."""
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -313,7 +331,7 @@ def _read_csv(path, source, required):
         _fail(source, "is not a text (UTF-8) CSV file")
     lines = text.splitlines()
     del text
-    h, delim, names = _find_header(lines, source, required)
+    h, delim, names = _find_header(lines, source, required, hint)
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         _fail(source, f"duplicated column name(s) in the header: {', '.join(dupes)}", h + 1)
@@ -325,7 +343,7 @@ def _read_csv(path, source, required):
     return {n: data[:, j].copy() for j, n in enumerate(names)}, rows
 
 
-def load_columns(path, required=("t",), *, min_samples: int = 2) -> dict:
+def load_columns(path, required=("t",), *, min_samples: int = 2, time: str = "t") -> dict:
     """Read named columns from a CSV, with the same tolerance and messages as [`load_record`][].
 
     For files that are not (t, u, y) records, e.g. a desired output trajectory. The required
@@ -337,12 +355,14 @@ def load_columns(path, required=("t",), *, min_samples: int = 2) -> dict:
     - `path`: the CSV file (any of `,` `;` tab as delimiter; preamble and `#` lines skipped).
     - `required`: the column names that must be in the header (lower case).
     - `min_samples`: fewer data rows than this are rejected.
+    - `time`: the name of the time column, checked for increase when it is required.
 
     **Returns:** a dict from lower-case column name to a float64 array (T,). Raises
     [`DataError`][] naming the file, the row and the problem.
     """
     path, source = _existing(path)
-    required = tuple(required)
+    required = tuple(base_name(r) for r in required)
+    time = base_name(time)
     cols, rows = _read_csv(path, source, required)
     for name in required:
         bad = ~np.isfinite(cols[name])
@@ -352,23 +372,30 @@ def load_columns(path, required=("t",), *, min_samples: int = 2) -> dict:
     n = len(rows)
     if n < min_samples:
         _fail(source, f"only {n} sample{'s' * (n != 1)}; at least {min_samples} are needed")
-    if "t" in required:
-        dt = np.diff(cols["t"])
+    if time in required:
+        dt = np.diff(cols[time])
         if np.any(dt <= 0):
             k = int(np.argmax(dt <= 0))
             what = "repeats" if dt[k] == 0 else "goes backwards"
-            t = float(cols["t"][k + 1])
+            t = float(cols[time][k + 1])
             _fail(source, f"time is not strictly increasing: t = {t:.10g} {what}", rows[k + 1])
     return cols
 
 
-def _load_npz(path, source, **opts):
+def _load_npz(path, source, names=None, **opts):
     try:
         # Our own handle: np.load leaves its file open when the archive is corrupt.
         with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
             arrays = {k: np.asarray(z[k]) for k in z.files}
     except Exception as e:  # a corrupt archive can raise many kinds of error
         _fail(source, f"cannot be read as NPZ ({type(e).__name__}: {e})")
+    if names is not None:
+        byname = {base_name(k): k for k in arrays}
+        missing = [n for n in names if n not in byname]
+        if missing:
+            _fail(source, f"missing array(s) {', '.join(missing)}; found {sorted(arrays)}")
+        chosen = {k: arrays.pop(byname[n]) for k, n in zip(("t", "u", "y"), names)}
+        arrays = chosen | {k: v for k, v in arrays.items() if k not in chosen}
     missing = [k for k in ("t", "u", "y") if k not in arrays]
     if missing:
         _fail(source, f"missing array(s) {', '.join(missing)}; found {sorted(arrays)}")

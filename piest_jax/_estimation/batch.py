@@ -339,7 +339,7 @@ def noise_study(
 
     **Returns:** a JSON-ready dict (lists of numbers; inf where a run never re-converged).
     """
-    if isinstance(replicates, bool) or not isinstance(replicates, int) or replicates < 2:
+    if not _checks.is_whole(replicates) or replicates < 2:
         raise ValueError(f"`replicates` must be a whole number >= 2, got {replicates!r}")
     dt, r = 1e-3, np.array([0.0, 10.0 / 3.0, 20.0 / 3.0])
     t = np.arange(int(round(duration / dt)) + 1) * dt

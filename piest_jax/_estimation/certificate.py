@@ -163,7 +163,7 @@ def convergence_certificate(
     _, n = H.shape
     P0 = _check_p0_for(P0, n)
     dt = _check_dt(dt, normalisation)
-    _window_args(H.shape[0], window, 1)  # a clear error for a bad window, before compiling
+    window, _, _ = _window_args(H.shape[0], window, 1)  # a clear error for a bad window, before compiling
     return _certificate(H, P0, dt, window, normalisation)
 
 

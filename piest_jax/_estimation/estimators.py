@@ -68,7 +68,22 @@ class Estimation(eqx.Module):
     gain_max_eig: Signal
 
 
+def check_estimator(estimator) -> AbstractEstimator:
+    """Refuse anything but an estimator instance, naming the usual slip: the class itself."""
+    if isinstance(estimator, type) and issubclass(estimator, AbstractEstimator):
+        raise ValueError(
+            f"`estimator` is the class {estimator.__name__}, not an estimator: create one with its "
+            f"settings, e.g. {estimator.__name__}(...)"
+        )
+    if not isinstance(estimator, AbstractEstimator):
+        raise ValueError(
+            f"`estimator` must be an estimator such as ContinuousRLS(P0, dt), got {type(estimator).__name__}"
+        )
+    return estimator
+
+
 def _data(estimator: AbstractEstimator, H, y, initial_weights) -> tuple[Array, Array, Array]:
+    check_estimator(estimator)
     H = _checks.as_float_array(H, "H")
     if H.ndim != 2:
         raise ValueError(

@@ -26,7 +26,7 @@ from jaxtyping import Array, Float
 from .. import _checks
 from .._excitation.map_settings import numerical_tolerance
 from .._operators.play import play
-from .estimators import AbstractEstimator
+from .estimators import AbstractEstimator, check_estimator
 from .rls import ContinuousRLS, sample_weight
 
 DEFAULT_CHUNK = 1 << 16
@@ -175,6 +175,7 @@ def estimate_record(
         raise ValueError(f"`window` must be between 2 and the record's {T} samples, got {window}")
     if keep < 1 or chunk < 1:
         raise ValueError("`keep` and `chunk` must be positive")
+    check_estimator(estimator)
     expected = estimator.n_plays
     if expected is not None and expected != n + offset:
         raise ValueError(

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from .. import _checks
 from .map_settings import numerical_tolerance
 
 SHARPER_STATEMENT = (
@@ -160,10 +161,11 @@ def sharper_condition(H, u, window: int, *, stride: int = 1, rtol=None, atol=Non
     u = jnp.asarray(u, H.dtype)
     if H.ndim != 2 or u.shape != (H.shape[0],):
         raise ValueError(f"`H` must be (T, n) and `u` (T,), got {H.shape} and {u.shape}")
-    if isinstance(window, bool) or not isinstance(window, int) or not 1 <= window <= H.shape[0]:
+    if not _checks.is_whole(window) or not 1 <= window <= H.shape[0]:
         raise ValueError(f"`window` must be between 1 and the signal length {H.shape[0]}")
-    if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
+    if not _checks.is_whole(stride) or stride < 1:
         raise ValueError(f"`stride` must be a whole number >= 1, got {stride!r}")
+    window, stride = int(window), int(stride)
     rtol = numerical_tolerance(H.dtype) if rtol is None else rtol
     atol = default_atol(u, jnp.max(jnp.abs(H))) if atol is None else atol
     return holds(window_stats(H, u, window, stride, rtol, atol), H.shape[1])

@@ -110,7 +110,7 @@ class ExactCondition(NamedTuple):
 @eqx.filter_jit
 def _event_level(H, u, r, window: int, stride: int):
     T, n = H.shape
-    _, stride, nw = _window_args(T, window, stride)
+    window, stride, nw = _window_args(T, window, stride)
     rho, _, _ = _event_rows(H, u, r)
     outer = rho[:, :, None] * rho[:, None, :]
     csum = jnp.concatenate([jnp.zeros((1, n, n), H.dtype), jnp.cumsum(outer, axis=0)])
@@ -147,6 +147,7 @@ def exact_condition(H, u, r, window: int, *, stride: int = 1, tol=None) -> Exact
     **Returns:** an [`ExactCondition`][] `(holds, level, tolerance)`.
     """
     H, u, r = _inputs(H, u, r, window, stride)
+    window, stride = int(window), int(stride)  # NumPy integers too, static under jit
     tol = _tolerance(tol, H.dtype)
     level = _event_level(H, u, r, window, stride)
     tol = jnp.asarray(tol, H.dtype)
@@ -164,7 +165,7 @@ def _segment_ends(rho, du, moving):
 @eqx.filter_jit
 def _margin(H, u, r, window: int, stride: int):
     T, n = H.shape
-    _, stride, nw = _window_args(T, window, stride)
+    window, stride, nw = _window_args(T, window, stride)
     rho, moving, _ = _event_rows(H, u, r)
     du = jnp.concatenate([jnp.zeros((1,), u.dtype), u[1:] - u[:-1]])
     ends = _segment_ends(rho, du, moving)
@@ -202,6 +203,7 @@ def pe_margin(H, u, r, window: int, *, stride: int = 1, tol=None) -> Float[Array
     (up to rounding, about n eps times the Gram's largest eigenvalue).
     """
     H, u, r = _inputs(H, u, r, window, stride)
+    window, stride = int(window), int(stride)  # NumPy integers too, static under jit
     tol = _tolerance(tol, H.dtype)
     ok = _event_level(H, u, r, window, stride) > tol
     return jnp.where(ok, _margin(H, u, r, window, stride), 0.0)

@@ -15,6 +15,7 @@ import numpy as np
 from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from .. import _checks
 from .draw_metrics import draw_statistics
 from .families import draw_case
 from .map_settings import MapSettings
@@ -28,8 +29,9 @@ def draw_keys(key, start: int, count: int):
 
     **Arguments:** `key`, a PRNG key; `start`, the first draw number; `count`, how many.
 
-    **Returns:** (count,) keys.
+    **Returns:** (count,) keys (new-style, whichever kind `key` is).
     """
+    key = _checks.prng_key(key)
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(start, start + count))
 
 
@@ -112,8 +114,11 @@ def pe_map(
 
     **Arguments:**
 
-    - `key`: a PRNG key; draw i uses `fold_in(key, i)` and family `draw_family(i)`, so results do
-      not depend on `chunk` or on the number of devices.
+    - `key`: a PRNG key, new-style or legacy (`jax.random.PRNGKey`, the same numbers); draw i
+      uses `fold_in(key, i)` and family `draw_family(i)`, so the draws do not depend on `chunk`
+      or on the number of devices, and the statistics computed from them only up to rounding
+      (a different batch shape can change the order of floating-point sums, by about 1e-16
+      relative in float64).
     - `n_draws`: number of draws, >= 1.
     - `settings`: from [`make_settings`][].
     - `chunk`: draws per jitted call (bounds memory); rounded up to a multiple of the device count
@@ -126,9 +131,11 @@ def pe_map(
     **Returns:** a dict of NumPy arrays with a leading axis of `n_draws` (see
     [`draw_statistics`][]), plus `seconds`, the wall time including compilation.
     """
+    key = _checks.prng_key(key)
     for name, v in (("n_draws", n_draws), ("chunk", chunk)):
-        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+        if not _checks.is_whole(v) or v < 1:
             raise ValueError(f"`{name}` must be a positive whole number, got {v!r}")
+    n_draws, chunk = int(n_draws), int(chunk)
     if not isinstance(settings, MapSettings):
         raise ValueError("`settings` must come from make_settings(...)")
     nf = len(settings.families)

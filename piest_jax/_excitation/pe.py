@@ -29,10 +29,11 @@ def _regressor(H, name: str = "H") -> Array:
 
 
 def _window_args(T: int, window, stride) -> tuple[int, int, int]:
-    if isinstance(window, bool) or not isinstance(window, int):
+    if not _checks.is_whole(window):
         raise ValueError(f"`window` must be a whole number of samples, got {window!r}")
-    if isinstance(stride, bool) or not isinstance(stride, int):
+    if not _checks.is_whole(stride):
         raise ValueError(f"`stride` must be a whole number of samples, got {stride!r}")
+    window, stride = int(window), int(stride)
     if window < 1 or window > T:
         raise ValueError(f"`window` must be between 1 and the signal length {T}, got {window}")
     if stride < 1:
@@ -47,7 +48,7 @@ def window_starts(T: int, window: int, *, stride: int = 1) -> Int[Array, " windo
 
     **Returns:** (n_windows,) indices 0, stride, 2·stride, ... with start + window <= T.
     """
-    _, stride, nw = _window_args(T, window, stride)
+    window, stride, nw = _window_args(T, window, stride)
     return jnp.arange(nw) * stride
 
 
@@ -67,7 +68,7 @@ def windowed_gram(H: Regressor, window: int, *, stride: int = 1) -> Float[Array,
     **Returns:** (n_windows, n, n), the mean of h_k h_kᵀ over each window.
     """
     H = _regressor(H)
-    _window_args(H.shape[0], window, stride)
+    window, stride, _ = _window_args(H.shape[0], window, stride)
     return _gram(H, window, stride)
 
 
@@ -91,7 +92,7 @@ def windowed_pe_levels(H: Regressor, window: int, *, stride: int = 1) -> Float[A
     **Returns:** (n_windows,); a window whose value is (numerically) zero is not exciting.
     """
     H = _regressor(H)
-    _window_args(H.shape[0], window, stride)
+    window, stride, _ = _window_args(H.shape[0], window, stride)
     return _pe_levels(H, window, stride)
 
 
@@ -141,13 +142,13 @@ def windowed_range(u, window: int, *, stride: int = 1) -> Float[Array, "windows 
     if u.ndim not in (1, 2):
         raise ValueError(f"`u` must have shape (T,) or (T, n), got {u.shape}")
     u = _checks.finite(u, "u")
-    _window_args(u.shape[0], window, stride)
+    window, stride, _ = _window_args(u.shape[0], window, stride)
     return _range(u, window, stride)
 
 
 @eqx.filter_jit
 def _range(u: Array, window: int, stride: int) -> Array:
-    _, stride, nw = _window_args(u.shape[0], window, stride)
+    window, stride, nw = _window_args(u.shape[0], window, stride)
     hi = _sliding(u, window, jnp.maximum)
     lo = _sliding(u, window, jnp.minimum)
     return (hi - lo)[:: stride][:nw]

@@ -390,6 +390,9 @@ def fit_pi(
         not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1
     ):
         raise ValueError(f"`starts_at_once` must be a positive whole number, got {starts_at_once}")
+    if not _checks.is_whole(max_steps) or max_steps < 1:
+        raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
+    max_steps = int(max_steps)  # optimistix takes Python integers only
     per_lag = 3 if fit_initial_states else 2
     _check_lags(n_lags, pad_lags, dt)
     un, yn, mask, s, x0, r_start = _prepare(

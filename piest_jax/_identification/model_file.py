@@ -120,14 +120,52 @@ def load_model(path):
     model's output (a [`PIModel`][] for a PI fit). Raises [`DataError`][] (a `ValueError`)
     naming the file and the problem.
     """
+    return model_from_keys(read_json(path), str(Path(path)))
+
+
+# A model of a million plays is about 60 MB of JSON; anything larger is not a model file.
+MAX_JSON_BYTES = 256 * 2**20
+
+
+def read_json(path, *, max_bytes: int | None = None):
+    """A JSON file decoded with limits: its size, its nesting (a deep file is refused, not a
+    RecursionError), and integers too long for a float (read as inf, then refused as not finite).
+
+    **Arguments:** `path`; `max_bytes`, the largest file read (default `MAX_JSON_BYTES`, 256 MB).
+
+    **Returns:** the decoded value. Raises [`DataError`][] naming the file and the problem.
+    """
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    size = path.stat().st_size
+    max_bytes = MAX_JSON_BYTES if max_bytes is None else max_bytes
+    if size > max_bytes:
+        raise DataError(f"{path}: {size / 2**20:.0f} MB is more than a model file holds "
+                        f"({max_bytes / 2**20:.0f} MB at most)")
     try:
-        keys = json.loads(path.read_text())
+        return json.loads(path.read_text(), parse_int=_integer)
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DataError(f"{path}: not a JSON file ({e})") from None
-    return model_from_keys(keys, str(path))
+    except RecursionError:
+        raise DataError(f"{path}: not a model file (nested too deeply)") from None
+
+
+def _integer(text: str):
+    # Integers beyond float64's range become inf (refused later as not finite), not an
+    # OverflowError when converted; 20 digits keep every int64.
+    return int(text) if len(text.lstrip("-")) <= 20 else float(text)
+
+
+def _no_booleans(d: dict, keys, source: str) -> None:
+    """JSON's `true` and `false` are not numbers, although Python counts them as 0 and 1."""
+
+    def has_bool(v):
+        return isinstance(v, bool) or (isinstance(v, list) and any(has_bool(x) for x in v))
+
+    for k in keys:
+        if has_bool(d.get(k)):
+            raise DataError(f"{source}: `{k}` holds true or false; it must be numbers")
 
 
 # --- the PI model -----------------------------------------------------------------------------
@@ -150,6 +188,7 @@ def _pi_from_keys(d: dict, source: str) -> PIModel:
     missing = [k for k in ("thresholds", "weights") if k not in d]
     if missing:
         raise DataError(f"{source}: missing {', '.join(missing)} (is it a `piest fit` fit.json?)")
+    _no_booleans(d, ("thresholds", "weights", "offset", "initial_states"), source)
     try:
         r = np.asarray(d["thresholds"], dtype=float)
         w = np.asarray(d["weights"], dtype=float)
@@ -196,6 +235,7 @@ def _creep_from_keys(d: dict, source: str) -> HysteresisModel:
     cr = d.get("creep")
     if not isinstance(cr, dict) or not {"time_constants", "weights", "dt"} <= set(cr):
         raise DataError(f"{source}: `creep` must hold time_constants, weights and dt")
+    _no_booleans(cr, ("time_constants", "weights", "dt", "initial_states"), source + ": creep")
     try:
         z0 = cr.get("initial_states")
         creep = Creep(np.asarray(cr["time_constants"], float), np.asarray(cr["weights"], float),

@@ -31,7 +31,7 @@ class PIOperator(AbstractHysteresisOperator):
 
     - `thresholds`: (n,), non-negative and strictly increasing. The paper has r_1 = 0, which makes
       the first play the identity and the operator invertible; it is not required here.
-    - `weights`: (n,).
+    - `weights`: (n,); a scalar for one play (`PIOperator(0.0, 1.0)`).
     - `initial_states`: the plays' states before the first sample, a scalar or (n,); they need not
       be zero (paper eq. 2).
     - `method`: how the plays are run, `"scan"`, `"associative"`, `"kernel"` or `"auto"` (see
@@ -52,8 +52,10 @@ class PIOperator(AbstractHysteresisOperator):
             r = r[None]
         n = r.shape[0]
         w = _checks.per_play(weights, n, "weights")
-        if w.ndim == 0:
+        if w.ndim == 0 and n > 1:
             raise ValueError(f"`weights` must be a vector of {n} entries, got a scalar")
+        # One play: a scalar weight goes with a scalar threshold, as for the initial state.
+        w = jnp.broadcast_to(w, (n,))
         x0 = _checks.per_play(initial_states, n, "initial_states")
         if method not in METHODS:
             raise ValueError(f"unknown play method {method!r}; choose one of {METHODS}")

@@ -1,0 +1,60 @@
+"""Column names and cells as users' files have them: names with units, names chosen by the user,
+quoted fields, and what is not a number.
+
+- A header cell is matched by its name without quotes, case or a trailing unit in brackets or
+  parentheses: `t [s]`, `"T (s)"` and `t` all name the column `t`.
+- `columns=("time_s", "voltage_V", "displacement_um")` names the file's columns that hold t, u
+  and y (matched the same way); the CLI's `--columns TIME,INPUT,OUTPUT` passes it.
+- A cell is a number when it is an ASCII decimal or exponent literal, optionally in quotes (as
+  spreadsheet exports write every field); `1_000` (Python's digit grouping) and digits of other
+  scripts (`١٢`) are not, although Python's `float` reads both.
+"""
+
+import re
+
+_UNIT = re.compile(r"\s*(\[[^\[\]]*\]|\([^()]*\))\s*$")
+_NUMBER = re.compile(r"[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|inf(inity)?|nan)", re.IGNORECASE | re.ASCII)
+
+
+def unquote(cell: str) -> str:
+    """A cell without surrounding blanks and one pair of surrounding quotes."""
+    cell = cell.strip()
+    if len(cell) >= 2 and cell[0] == cell[-1] and cell[0] in "\"'":
+        cell = cell[1:-1].strip()
+    return cell
+
+
+def base_name(cell: str) -> str:
+    """A header cell's name: unquoted, lower case, a trailing `[unit]` or `(unit)` removed."""
+    name = unquote(cell).lower()
+    stripped = _UNIT.sub("", name)
+    return stripped if stripped else name
+
+
+def to_number(cell: str) -> float | None:
+    """The cell's value, or None when it is not a number (see the module's text)."""
+    text = unquote(cell)
+    if not _NUMBER.fullmatch(text):
+        return None
+    return float(text)
+
+
+def column_names(columns, source: str) -> tuple[str, ...] | None:
+    """The three base names `columns` gives for t, u and y (None: the file's own `t,u,y`).
+
+    **Arguments:** `columns`, None, a sequence of three names, or one string `"A,B,C"`;
+    `source`, for the message.
+
+    **Returns:** the base names. Raises `ValueError` for anything but three distinct names.
+    """
+    if columns is None:
+        return None
+    if isinstance(columns, str):
+        columns = columns.split(",")
+    names = tuple(base_name(str(c)) for c in columns)
+    if len(names) != 3 or not all(names) or len(set(names)) != 3:
+        raise ValueError(
+            f"{source}: columns= needs three distinct names, for time, input and output "
+            f"(e.g. time_s,voltage_V,displacement_um); got {list(columns)!r}"
+        )
+    return names

@@ -1,0 +1,122 @@
+"""Columns as users name them: units in the header, names chosen with `columns=` / `--columns`,
+quoted numbers; and what only looks like a number (`1_000`, digits of other scripts) refused."""
+
+import json
+
+import numpy as np
+import pytest
+
+import piest_jax as pj
+from piest_jax._cli import main
+
+T = 0.01 * np.arange(300)
+U = 2 * np.sin(2 * np.pi * T)
+Y = 0.5 * U + 0.1 * np.cos(2 * np.pi * T)
+
+
+def _write(path, header, quote="", delim=","):
+    rows = zip(T.tolist(), U.tolist(), Y.tolist())
+    body = "".join(delim.join(f"{quote}{v!r}{quote}" for v in row) + "\n" for row in rows)
+    path.write_text(header + "\n" + body)
+    return path
+
+
+def _run(capsys, argv):
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+@pytest.mark.parametrize("header", ["t [s],u [V],y [um]", '"T (s)";"U (V)";"Y [µm]"', "t,u ( V ),y[um]"])
+def test_units_in_the_header_match_by_name(header, tmp_path):
+    delim = ";" if ";" in header else ","
+    rec = pj.load_record(_write(tmp_path / "r.csv", header, delim=delim))
+    np.testing.assert_array_equal(rec.u, U)
+    np.testing.assert_array_equal(rec.y, Y)
+
+
+def test_quoted_numbers_are_read(tmp_path):
+    rec = pj.load_record(_write(tmp_path / "q.csv", '"t","u","y"', quote='"'))
+    np.testing.assert_array_equal(rec.t, T)
+    np.testing.assert_array_equal(rec.u, U)
+
+
+def test_columns_name_the_file_s_columns(tmp_path):
+    path = _write(tmp_path / "n.csv", "time_s,voltage_V,displacement_um")
+    for columns in (("time_s", "voltage_V", "displacement_um"), "TIME_S,voltage_v,displacement_um"):
+        rec = pj.load_record(path, columns=columns)
+        np.testing.assert_array_equal(rec.y, Y)
+        assert rec.extras == {}
+    with pytest.raises(ValueError, match=r"no header row naming the columns t, u and y .*columns="):
+        pj.load_record(path)
+    with pytest.raises(ValueError, match="columns= needs three distinct names"):
+        pj.load_record(path, columns=("time_s", "time_s", "voltage_V"))
+    with pytest.raises(ValueError, match=r"missing column\(s\) y_um"):
+        pj.load_record(path, columns="time_s,voltage_V,y_um")
+
+
+def test_columns_in_an_npz(tmp_path):
+    path = tmp_path / "r.npz"
+    np.savez(path, time=T, volts=U, um=Y, t=np.zeros_like(T))
+    rec = pj.load_record(path, columns=("time", "volts", "um"))
+    np.testing.assert_array_equal(rec.t, T)
+    assert "t" not in rec.extras  # the chosen time column is `t`; the file's own `t` is not kept
+
+
+@pytest.mark.parametrize("cell", ["1_000", "\u0661\u0662", "\uff11", "0x10", "1d5"])
+def test_what_only_looks_like_a_number_is_refused(cell, tmp_path):
+    lines = ["t,u,y"] + [f"{a!r},{b!r},{c!r}" for a, b, c in zip(T.tolist(), U.tolist(), Y.tolist())]
+    lines[5] = f"{float(T[4])!r},{cell},1"
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(ValueError, match=rf"row 6: cell 2 is not a number: {cell!r}"):
+        pj.load_record(path)
+
+
+def test_piest_fit_with_columns_fits_the_record(tmp_path, capsys):
+    named = _write(tmp_path / "n.csv", "time_s,voltage_V,displacement_um")
+    units = _write(tmp_path / "u.csv", "t [s],u [V],y [um]")
+    plain = _write(tmp_path / "p.csv", "t,u,y")
+    reports = []
+    for argv in ([str(named), "--columns", "time_s,voltage_V,displacement_um"], [str(units)], [str(plain)]):
+        out = tmp_path / f"o{len(reports)}"
+        code, _, err = _run(capsys, ["fit", *argv, "--model", "pi", "--plays", "2", "--starts", "2",
+                                     "--max-steps", "40", "--quiet", "--out", str(out)])
+        assert code == 0, err
+        reports.append(json.loads((out / "fit.json").read_text()))
+    # The same fit as of the file with the usual names.
+    for rep in reports[:2]:
+        assert (rep["thresholds"], rep["weights"], rep["rmse"]) == (
+            reports[2]["thresholds"], reports[2]["weights"], reports[2]["rmse"])
+
+
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["fit", "x.csv", "--columns", "a,b"], "argument --columns: expected 3 distinct column names"),
+        (["fit", "x.csv", "--columns", "a,A,b"], "expected 3 distinct column names"),
+        (["compensate", "m.json", "d.csv", "--columns", "t,d,e"], "expected 2 distinct column names"),
+        (["simulate", "--columns", "a,b,c"], "--columns is only used with --input csv"),
+        (["simulate", "--resample"], "--resample is only used with --input csv"),
+    ],
+)
+def test_bad_columns_give_one_line(argv, needle, tmp_path, capsys):
+    code, out, err = _run(capsys, [*argv, "--out", str(tmp_path / "o")])
+    assert (code, out) == (2, "") and err.count("\n") == 1 and needle in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_compensate_with_columns(tmp_path, capsys):
+    model = tmp_path / "m.json"
+    model.write_text(json.dumps({"thresholds": [0, 0.5], "weights": [1, 0.5], "offset": 0.0}))
+    desired = _write(tmp_path / "d.csv", "time [s],input,target [um]")
+    out = tmp_path / "o"
+    code, _, err = _run(capsys, ["compensate", str(model), str(desired), "--columns", "time,target",
+                                 "--quiet", "--out", str(out)])
+    assert code == 0, err
+    res = np.loadtxt(out / "compensate.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(res[:, 1], Y)
+    np.testing.assert_allclose(res[:, 3], Y, atol=1e-9)
