@@ -185,3 +185,22 @@ def test_bad_covariance_name():
     u = signal()
     with pytest.raises(ValueError, match="unknown covariance 'sandwich'"):
         pj.fit_pi(u, u, 2, covariance="sandwich")
+
+
+def test_creep_parameters_have_standard_errors():
+    from test_fit_creep import DT, plant, signal as creep_signal
+
+    u = creep_signal(600)
+    y = plant(u) + 0.002 * np.random.default_rng(5).standard_normal(u.size)
+    f = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, fit_initial_states=True, key=jax.random.key(0))
+    assert f.parameter_names[-3:] == ("creep.time_constants[0]", "creep.weights[0]",
+                                      "creep.initial_states[0]")
+    assert "initial_states[0]" not in f.parameter_names and "initial_states[2]" in f.parameter_names
+    se = dict(zip(f.parameter_names, np.asarray(f.std_errors)))
+    assert 0 < se["creep.time_constants[0]"] < 0.1 * float(f.creep.time_constants[0])
+    assert np.all(np.isfinite(f.covariance)) and f.covariance.shape == (len(f.parameter_names),) * 2
+    # Without covariance the fit is the same and the fields are empty.
+    g = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, fit_initial_states=True, key=jax.random.key(0),
+                  covariance=None)
+    assert g.covariance is None and g.parameter_names == () and g.undetermined_names == ()
+    np.testing.assert_allclose(g.thresholds, f.thresholds, rtol=1e-12)

@@ -197,3 +197,18 @@ def scales(names, values, u_half, y_half):
         else:
             out[i] = abs(v)
     return out
+
+
+def table(fit) -> str:
+    """A `value ± std error` table of a fit's parameters in Markdown, undetermined ones marked.
+
+    **Arguments:** `fit`, a `PIFit` with a covariance.
+
+    **Returns:** the table's text (one header, one row per parameter).
+    """
+    rows = ["| parameter | value | std error | |", "|---|---|---|---|"]
+    for n, v, s, bad in zip(fit.parameter_names, np.asarray(fit.parameter_values),
+                            np.asarray(fit.std_errors), np.asarray(fit.undetermined)):
+        se = f"± {s:.4g}" if np.isfinite(s) else "undetermined (rank)"
+        rows.append(f"| {n} | {v:.6g} | {se} | {'undetermined' if bad else ''} |")
+    return "\n".join(rows) + "\n"
