@@ -204,3 +204,31 @@ def test_creep_parameters_have_standard_errors():
                   covariance=None)
     assert g.covariance is None and g.parameter_names == () and g.undetermined_names == ()
     np.testing.assert_allclose(g.thresholds, f.thresholds, rtol=1e-12)
+
+
+def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, monkeypatch):
+    import json
+
+    from piest_jax._cli import fit as fit_cmd
+    from piest_jax._cli import main
+
+    t = np.linspace(0.0, 2.0, 400)
+    u = np.sin(2 * np.pi * 2 * t)
+    y = ref.play(u, [0.0, 0.4], 0.0) @ [1.0, 0.5] + 0.01 * np.random.default_rng(3).standard_normal(400)
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    real = pj.fit_pi
+    # The solver would move a play out of reach; starting it there and taking no step keeps it.
+    monkeypatch.setattr(fit_cmd, "fit_pi", lambda u, y, n, **kw: real(
+        u, y, n, thresholds0=[0.0, 0.4, 1.5], n_starts=1, max_steps=1, initial_states=0.0))
+    out = tmp_path / "o"
+    assert main(["fit", str(tmp_path / "d.csv"), "--model", "pi", "--plays", "3", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    text = (out / "fit.json").read_text()
+    rep = json.loads(text)
+    assert "NaN" not in text and "Infinity" not in text
+    assert rep["std_errors"]["thresholds[2]"] is None and rep["std_errors"]["weights[0]"] > 0
+    assert "std_errors.thresholds[2]" in rep["non_finite"]
+    assert "thresholds[2]" in rep["undetermined"] and rep["flagged"][2] is True
+    assert "does not determine" in err and "thresholds[2]" in err and "| weights[0] |" in err
+    assert "undetermined (rank)" in (out / "fit.md").read_text()
+    assert pj.load_model(out / "fit.json").thresholds.shape == (3,)
