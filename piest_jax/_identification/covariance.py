@@ -199,6 +199,52 @@ def scales(names, values, u_half, y_half):
     return out
 
 
+def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, fit_states, n_plays,
+               n_lags) -> dict:
+    """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
+    padded; `r`, `w` its thresholds and weights): the Jacobian over every padded parameter (one
+    compilation per padded shape), then the columns of the parameters in use."""
+    # On the host in NumPy: eager JAX operations would each compile once per shape.
+    p, r, w, s_np = (jax.tree.map(np.asarray, a) for a in (p, r, w, s))
+    um, uh, ym, yh = (float(v) for v in (s_np.u_mid, s_np.u_half, s_np.y_mid, s_np.y_half))
+    layout = Layout(r.shape[0], 0 if z0 is None else z0.shape[0], fit_states)
+    parts = [r[1:] * uh, w * yh / uh, None]
+    if fit_states:
+        parts.append(um + uh * p["initial_states"])
+    total = np.sum(parts[1])
+    if layout.k:
+        c = p["lag_weights"] if lag_active is None else p["lag_weights"] * np.asarray(lag_active)
+        parts += [np.exp(p["lag_log_tau"]) * dt, c * yh / uh]
+        total = total + np.sum(parts[-1])
+        if fit_states:
+            parts.append(um + uh * p["lag_states"])
+    parts[2] = np.atleast_1d(ym + yh * p["offset"] - um * total)
+    theta = np.concatenate(parts).astype(np.asarray(un).dtype)
+    pred, J = jacobian(run, layout, theta, un, s, x0, z0, np.asarray(dt, np.asarray(un).dtype))
+    used = np.asarray(mask) > 0
+    m = np.asarray(mask)[used]
+    y = np.asarray(yn)[used] * yh + ym
+    names, index = layout.names(n_plays, n_lags)
+    Ju = np.asarray(J)[used][:, index] * m[:, None]
+    e = (y - np.asarray(pred)[used]) * m
+    cov, se, deficient, _ = estimate(Ju, e, method=method, eps=np.finfo(un.dtype).eps)
+    values = theta[index]
+    scale = scales(names, values, uh, yh)
+    undetermined = deficient | ~(se < RELATIVE_LIMIT * scale)
+    return dict(parameter_names=names, parameter_values=jnp.asarray(values), covariance=jnp.asarray(cov),
+                std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
+                covariance_method=method)
+
+
+def play_flags(names, undetermined, n_plays):
+    """Plays with an undetermined threshold, weight or initial state."""
+    flags = np.zeros(n_plays, bool)
+    for name, bad in zip(names, np.asarray(undetermined)):
+        if bad and name.split("[")[0] in ("thresholds", "weights", "initial_states"):
+            flags[int(name.split("[")[1][:-1])] = True
+    return flags
+
+
 def table(fit) -> str:
     """A `value ± std error` table of a fit's parameters in Markdown, undetermined ones marked.
 

@@ -523,9 +523,9 @@ def fit_pi(
     if not bool(jnp.isfinite(loss[best])):
         raise ValueError("every start of the fit produced non-finite residuals")
     p = jax.tree.map(lambda a: a[best], params)
-    r, w = _constrained(p, positive_weights, r_bound, active)
+    r_all, w_all = _constrained(p, positive_weights, r_bound, active)
     xn = p.get("initial_states", x0)
-    r, w, xn = r[:n_plays], w[:n_plays], xn[:n_plays]
+    r, w, xn = r_all[:n_plays], w_all[:n_plays], xn[:n_plays]
     thresholds = r * s.u_half
     weights = w * s.y_half / s.u_half
     states = s.u_mid + s.u_half * xn
@@ -542,12 +542,13 @@ def fit_pi(
         creep = Creep(tau, cw, dt, zs)
     fields = {}
     if covariance is not None:
-        fields = _uncertainty(covariance, p, un, yn, mask, s, x0, z0, dt, positive_weights, r_bound,
-                              active, lag_active, fit_initial_states, n_plays, n_lags)
+        fields = _cov.fit_fields(covariance, run, p, r_all, w_all, un, yn, mask, s, x0, z0, dt,
+                                 lag_active, fit_initial_states, n_plays, n_lags)
     unexcited_plays = thresholds >= s.u_half
     flagged = unexcited_plays
     if fields:
-        flagged = flagged | _play_flags(fields["parameter_names"], fields["undetermined"], n_plays)
+        flags = _cov.play_flags(fields["parameter_names"], fields["undetermined"], n_plays)
+        flagged = jnp.asarray(np.asarray(flagged) | flags)
     return PIFit(
         thresholds=thresholds,
         weights=weights,
@@ -561,48 +562,6 @@ def fit_pi(
         creep=creep,
         **fields,
     )
-
-
-def _uncertainty(method, p, un, yn, mask, s, x0, z0, dt, positive_weights, r_bound, active,
-                 lag_active, fit_states, n_plays, n_lags):
-    """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
-    padded): the Jacobian over every padded parameter (one compilation per padded shape), then
-    the columns of the parameters in use."""
-    r, w = _constrained(p, positive_weights, r_bound, active)
-    layout = _cov.Layout(r.shape[0], 0 if z0 is None else z0.shape[0], fit_states)
-    x = s.u_mid + s.u_half * p.get("initial_states", x0)
-    lags = {}
-    if layout.k:
-        lags = dict(taus=jnp.exp(p["lag_log_tau"]) * dt,
-                    lag_weights=_lag_weights(p, lag_active) * s.y_half / s.u_half,
-                    lag_states=s.u_mid + s.u_half * p.get("lag_states", z0))
-    w_user = w * s.y_half / s.u_half
-    total = jnp.sum(w_user) + (jnp.sum(lags["lag_weights"]) if lags else 0.0)
-    offset = s.y_mid + s.y_half * p["offset"] - s.u_mid * total
-    theta = _cov.flatten(layout, r * s.u_half, w_user, offset, x, **lags)
-    pred, J = _cov.jacobian(run, layout, theta, un, s, x0, z0, jnp.asarray(dt, un.dtype))
-    used = np.asarray(mask) > 0
-    m = np.asarray(mask)[used]
-    y = np.asarray(yn)[used] * float(s.y_half) + float(s.y_mid)
-    names, index = layout.names(n_plays, n_lags)
-    Ju = np.asarray(J)[used][:, index] * m[:, None]
-    e = (y - np.asarray(pred)[used]) * m
-    cov, se, deficient, _ = _cov.estimate(Ju, e, method=method, eps=np.finfo(un.dtype).eps)
-    values = np.asarray(theta)[index]
-    scale = _cov.scales(names, values, float(s.u_half), float(s.y_half))
-    undetermined = deficient | ~(se < _cov.RELATIVE_LIMIT * scale)
-    return dict(parameter_names=names, parameter_values=jnp.asarray(values), covariance=jnp.asarray(cov),
-                std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
-                covariance_method=method)
-
-
-def _play_flags(names, undetermined, n_plays):
-    """Plays with an undetermined threshold, weight or initial state."""
-    flags = np.zeros(n_plays, bool)
-    for name, bad in zip(names, np.asarray(undetermined)):
-        if bad and name.split("[")[0] in ("thresholds", "weights", "initial_states"):
-            flags[int(name.split("[")[1][:-1])] = True
-    return jnp.asarray(flags)
 
 
 def _check_lags(n_lags, pad_lags, dt) -> None:
