@@ -1,6 +1,7 @@
 """What the covariance costs: `fit_pi` on 10^4 samples with and without it.
 
-One process, so that both variants see the same machine load: the fit is compiled and run once
+Times are CPU seconds of the process (`time.process_time`, all threads), which other jobs on a
+shared machine disturb far less than wall time. One process: the fit is compiled and run once
 without covariance (`first_none`: compilation + solve, what a `piest fit` run pays), then once with
 it (`first_covariance`: the solve + the Jacobian's own compilation; the fit's compilation is
 shared). Then the two alternate `REPEATS` times, and the minimum of each is its warm time. The
@@ -28,9 +29,11 @@ T, REPEATS = 10_000, 5
 
 
 def timed(fn):
-    start = time.perf_counter()
+    """CPU seconds of this process (all its threads): on a machine shared with other jobs, wall
+    time measures their load as much as this fit."""
+    start = time.process_time()
     jax.block_until_ready(fn().thresholds)
-    return time.perf_counter() - start
+    return time.process_time() - start
 
 
 def main():
