@@ -355,7 +355,7 @@ def test_cli_fit(tmp_path, capsys, clean):
                str(tmp_path / "v.csv"), "--out", str(out), "--quiet"])
     assert rc == 0
     assert sorted(p.split("/")[-1] for p in capsys.readouterr().out.split()) == [
-        "fit.json", "fit.png", "validation.png"]
+        "fit.json", "fit.md", "fit.png", "validation.png"]
     rep = __import__("json").loads((out / "fit.json").read_text())
     np.testing.assert_allclose(rep["thresholds"], f.thresholds, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(rep["weights"], f.weights, rtol=1e-9)
@@ -368,6 +368,16 @@ def test_cli_fit(tmp_path, capsys, clean):
     assert rep["validation_rmse"] == pytest.approx(expected, rel=1e-6, abs=1e-9)
     assert rep["validation_rmse"] < 1e-3 * np.ptp(y)
     assert rep["flagged"] == [False, False, False]
+    # Every fitted parameter has a standard error by name, the covariance names its rows, and a
+    # value +- std error table lands beside fit.json.
+    names = ["thresholds[1]", "thresholds[2]", "weights[0]", "weights[1]", "weights[2]", "offset"]
+    assert list(rep["std_errors"]) == names == rep["covariance"]["parameter_names"]
+    assert rep["covariance"]["method"] == "newey-west" and rep["undetermined"] == []
+    assert np.array(rep["covariance"]["matrix"]).shape == (6, 6)
+    assert all(0 <= v < 1e-6 for v in rep["std_errors"].values())
+    assert "| weights[2] |" in (out / "fit.md").read_text()
+    assert rep["validation_starts_at_rest"] is False  # a sine from its zero crossing
+    assert rep["validation_initial_states"].startswith("first input")
     # Refuses to overwrite; --plays auto picks 3 among 2 and 3.
     assert main(["fit", str(tmp_path / "d.csv"), "--plays", "3", "--out", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err

@@ -9,6 +9,7 @@ from . import memory
 from . import output as _io
 from .._data.record import load_record
 from .._identification.compare import compare
+from .._identification.covariance import table as parameter_table
 from .._identification.fit import SOLVERS, fit_pi
 from .._identification.model_file import model_keys
 from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select_plays
@@ -28,13 +29,21 @@ z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. 
                        initial_states, creep (time_constants, weights, dt, starts_at_rest,
                        initial_states when fitted; absent for plain PI),
                        rmse (over the fitted samples), the solver's result, plays flagged as not
-                       excited, the selection's candidates and scores, and with --validate:
-                       validation_rmse (raw: the model run on VAL.csv from rest),
+                       determined, std_errors (by parameter name; null when undetermined),
+                       covariance (method, parameter_names, matrix), undetermined (names), the
+                       selection's candidates, scores and rejected candidates, and with
+                       --validate: validation_rmse (raw: the model run on VAL.csv from the
+                       states named in validation_initial_states), validation_starts_at_rest,
                        validation_rmse_ic and validation_fit_percent (with VAL.csv's own output
                        offset and initial play and lag states estimated, nothing else)
+  DIR/fit.md           the parameters as a value +- std error table (also on stderr)
   DIR/fit.png          the measured and fitted loops and the residual over time
   DIR/validation.png   the same for --validate VAL.csv (raw prediction)
 Thresholds at or above half the input's peak-to-peak range cannot be excited and are flagged.
+Standard errors are Newey-West (sandwich) estimates from the Jacobian at the solution, honest
+for coloured residuals; a parameter whose standard error exceeds half its scale, or that the
+Jacobian's rank leaves free, is undetermined: named on stderr and in fit.json, and never kept
+by --plays auto or --model auto.
 --model auto (the default) chooses plain PI or PI + creep by held-out error on the last 30 %
 of the record: first the number of plays without creep, then 1, 2, ... lags (--lags) at that
 play count, each kept only if it predicts the held-out block better; --model pi and
@@ -52,7 +61,9 @@ and 3 lags: validation_rmse 0.54 and validation_rmse_ic 0.31 (PI alone: 1.34 and
 
 example:  piest fit data.csv --validate val.csv --out fitted"""
 
-OUTPUTS = ("fit.json", "fit.png", "validation.png")
+OUTPUTS = ("fit.json", "fit.md", "fit.png", "validation.png")
+# A standard error the record cannot bound is infinite: null in fit.json, listed in `undetermined`.
+NONFINITE = ("std_errors",)
 
 
 def plays_arg(text: str):
@@ -159,7 +170,7 @@ def run(args) -> int:
     args.candidates = args.candidates or list(CANDIDATES)
     args.criterion = args.criterion or "holdout"
     args.lags = args.lags or list(LAGS)
-    names = OUTPUTS if args.validate else OUTPUTS[:2]
+    names = OUTPUTS if args.validate else OUTPUTS[:3]
     out = _io.check_outputs(args.out, names, args.force)
     rec = load_record(args.data, resample=args.resample, columns=args.columns)
     if np.ptp(rec.u) == 0:
@@ -234,7 +245,8 @@ def run(args) -> int:
         opts.pop("time_constants0", None)
         sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, quiet=args.quiet, **opts)
         f = sel.fit
-        selection = {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores}
+        selection = {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores,
+                     "rejected": sel.rejected}
     elif len(cands) == 1 and len(lag_choices) == 1:
         f = fit_pi(rec.u, rec.y, cands[0], n_lags=lag_choices[0], dt=rec.dt, **opts)
     else:
@@ -245,7 +257,8 @@ def run(args) -> int:
             "criterion": "holdout",
             "candidates": [c[0] for c, _ in base],
             "scores": [s for _, s in base],
-            "models": [{"n_plays": c[0], "n_lags": c[1], "score": s}
+            "models": [{"n_plays": c[0], "n_lags": c[1], "score": s,
+                        "rejected": c in sel.rejected}
                        for c, s in zip(sel.candidates, sel.scores)],
         }
     model = f.model()
@@ -270,6 +283,10 @@ def run(args) -> int:
         # Where the model has seen data: `piest compensate` reports inputs outside it.
         "input_range": [float(rec.u.min()), float(rec.u.max())],
         "n_fitted_samples": n_used,
+        "std_errors": dict(zip(f.parameter_names, f.std_errors)),
+        "covariance": {"method": f.covariance_method, "parameter_names": f.parameter_names,
+                       "matrix": f.covariance},
+        "undetermined": f.undetermined_names,
     }
     if f.creep is not None:
         report["creep"] = {
@@ -295,6 +312,8 @@ def run(args) -> int:
         ic = compare(m, val.u, val.y, estimate_initial=True)
         yv = np.asarray(raw.prediction)
         report["validate"] = str(args.validate)
+        report["validation_initial_states"] = _state_convention(args)
+        report["validation_starts_at_rest"] = starts_at_rest(val.u)
         report["validation_rmse"] = float(raw.rmse)
         report["validation_rmse_ic"] = float(ic.rmse)
         report["validation_fit_percent"] = float(ic.fit_percent)
@@ -303,11 +322,23 @@ def run(args) -> int:
         )
     written.insert(0, _io.save_figure(_figure(rec, np.asarray(f(rec.u)), "fit", mask),
                                       out / "fit.png", dpi=110))
+    table = parameter_table(f)
+    written.insert(0, _io.write_text(out / "fit.md", _markdown(args, f, table)))
     written.insert(0, _io.write_json(out / "fit.json", report))
-    if np.any(np.asarray(f.flagged)):
+    print(table, end="", file=sys.stderr)
+    if f.undetermined_names:
+        print(f"piest fit: warning: the record does not determine {', '.join(f.undetermined_names)} "
+              "(standard error beyond half the parameter's scale, or free in the Jacobian's rank); "
+              "predictions that depend on them are arbitrary: try fewer plays or lags",
+              file=sys.stderr)
+    elif np.any(np.asarray(f.flagged)):
         idx = [int(i) + 1 for i in np.flatnonzero(np.asarray(f.flagged))]
         print(f"piest fit: note: plays {idx} are not excited by the input; their thresholds are "
               "not determined by the data", file=sys.stderr)
+    if val is not None and not report["validation_starts_at_rest"]:
+        print(f"piest fit: note: {args.validate} does not start at rest, so the raw "
+              "validation_rmse depends on the unknown states it starts from; "
+              "validation_rmse_ic estimates them", file=sys.stderr)
     for p in written:
         print(p)
     return 0
@@ -339,6 +370,31 @@ def _check_time_constants(taus, rec) -> None:
         if tau > 100 * duration:
             raise CLIError(f"--time-constants: {tau:g} is over 100 times the record's duration "
                            f"{duration:g}: such a lag cannot be told from an offset")
+
+
+def starts_at_rest(u, fraction: float = 0.01, tolerance: float = 0.01) -> bool:
+    """Whether a record starts at rest: its input moves by less than `tolerance` of its range
+    over the first `fraction` of the record (at least two samples)."""
+    u = np.asarray(u, float)
+    head = u[: max(2, int(round(fraction * u.size)))]
+    return bool(np.ptp(head) <= tolerance * max(np.ptp(u), np.finfo(float).tiny))
+
+
+def _state_convention(args) -> str:
+    if args.fit_initial_states:
+        return "fitted (the identification record's)"
+    if args.initial_states is not None:
+        return f"given ({args.initial_states:g})"
+    return "first input (every play and lag at rest at the validation record's first input)"
+
+
+def _markdown(args, f, table) -> str:
+    lines = [f"# piest fit: {args.data}", "",
+             f"{f.model().structure}, {f.n_plays} plays, {f.n_lags} lags; RMSE {float(f.rmse):.4g}; "
+             f"standard errors: {f.covariance_method}.", "", table]
+    if f.undetermined_names:
+        lines += [f"Undetermined by the record: {', '.join(f.undetermined_names)}.", ""]
+    return "\n".join(lines)
 
 
 def _validation_states(args, f, val):

@@ -23,6 +23,9 @@ mode: optimistix differentiates the solution implicitly at the optimum.
 Identifiability (paper Assumption 1): a play whose threshold is at or above half the input's
 peak-to-peak range never traverses its loop, so its threshold is not determined by the data. Such
 plays are returned in `flagged`; their thresholds are where the solver left them, not estimates.
+More generally every parameter's standard error comes from the Jacobian of the residuals at the
+solution (`covariance.py`), and a parameter the record does not determine (the Jacobian's rank, or
+a standard error beyond half its scale) is named in `undetermined_names` and flags its play.
 """
 
 from typing import Literal
@@ -37,6 +40,7 @@ from jaxtyping import Array, Bool, Float
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike, States, Thresholds, Weights
+from . import covariance as _cov
 from .fit_data import prepare as _prepare
 from .solvers import SOLVERS as SOLVERS
 from .solvers import check_solver, least_squares_solver, result_name
@@ -58,10 +62,21 @@ class PIFit(eqx.Module):
     - `weights` (n,), `offset` (scalar), `initial_states` (n,): the plays' states before sample 0.
     - `rmse`: root-mean-square residual on the fitted samples.
     - `result`: the optimistix result code of the chosen start (`optx.RESULTS`).
-    - `flagged` (n,) bool: plays not excited by the input (threshold >= half its peak-to-peak range).
+    - `flagged` (n,) bool: plays the record does not determine: not excited by the input
+      (threshold >= half its peak-to-peak range), or with an undetermined threshold, weight or
+      initial state (see `undetermined`).
     - `n_steps`: solver steps of the chosen start; `start_rmse` (starts,): every start's final RMSE.
     - `creep`: the fitted [`Creep`][] (time constants, weights, the lags' initial states), or
       None for a plain PI model.
+    - `parameter_names`: the fitted parameters' names, e.g. `("thresholds[1]", ..., "weights[0]",
+      ..., "offset", "creep.time_constants[0]", ...)`; r_1 = 0 is fixed and not among them.
+    - `parameter_values` (p,): their values, in the data's units.
+    - `covariance` (p, p), `std_errors` (p,): their estimated covariance and standard errors
+      (`covariance_method`, see `fit_pi`); a parameter the record does not determine through the
+      Jacobian's rank has an infinite standard error, and the covariance is then that of the
+      determined combinations (finite). None when the fit was asked for no covariance.
+    - `undetermined` (p,) bool: parameters the record does not determine (the Jacobian's
+      numerical rank, or a standard error beyond half the parameter's scale).
     """
 
     thresholds: Thresholds
@@ -74,6 +89,25 @@ class PIFit(eqx.Module):
     n_steps: Array
     start_rmse: Float[Array, " starts"]
     creep: Creep | None = None
+    parameter_names: tuple = eqx.field(static=True, default=())
+    parameter_values: Float[Array, " params"] | None = None
+    covariance: Float[Array, "params params"] | None = None
+    std_errors: Float[Array, " params"] | None = None
+    undetermined: Bool[Array, " params"] | None = None
+    covariance_method: str | None = eqx.field(static=True, default=None)
+
+    @property
+    def undetermined_names(self) -> tuple:
+        """The names of the parameters the record does not determine."""
+        if self.undetermined is None:
+            return ()
+        return tuple(n for n, u in zip(self.parameter_names, np.asarray(self.undetermined)) if u)
+
+    @property
+    def determined(self) -> bool:
+        """True when the record determines every fitted parameter: none is undetermined and no
+        play is flagged (the model-size choices keep only such fits)."""
+        return not self.undetermined_names and not bool(np.any(np.asarray(self.flagged)))
 
     @property
     def n_plays(self) -> int:
@@ -159,15 +193,24 @@ def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None
     r, w = _constrained(params, positive_weights, r_bound, active)
     x0 = params.get("initial_states", x0)
     if "lag_log_tau" not in params:
+        return run(u, r, w, params["offset"], x0)
+    c = _lag_weights(params, lag_active)
+    return run(u, r, w, params["offset"], x0, params["lag_log_tau"], c, params.get("lag_states", z0))
+
+
+def run(u, r, w, offset, x0, log_tau=None, c=None, z0=None):
+    """The model's output in normalised units from its natural parameters: thresholds `r`,
+    weights `w`, `offset`, play states `x0`, and optionally the lags' log time constants (in
+    samples), weights `c` and states `z0`. The fit and its covariance both run the model here."""
+    if log_tau is None:
 
         def step(x, ut):
             x = play_step(x, ut, r)
             return x, jnp.dot(w, x)
 
         _, y = lax.scan(step, x0, u)
-        return y + params["offset"]
-    a = decays(params["lag_log_tau"], 1.0)
-    c = _lag_weights(params, lag_active)
+        return y + offset
+    a = decays(log_tau, 1.0)
 
     # Plays and lags advance in one scan: on a CPU the per-sample overhead of a scan, not the
     # arithmetic, dominates, so a second scan would double the cost.
@@ -176,8 +219,8 @@ def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None
         x, z = play_step(x, ut, r), lag_step(z, ut, a)
         return (x, z), jnp.dot(w, x) + jnp.dot(c, z)
 
-    _, y = lax.scan(step_both, (x0, params.get("lag_states", z0)), u)
-    return y + params["offset"]
+    _, y = lax.scan(step_both, (x0, z0), u)
+    return y + offset
 
 
 def _residuals(params, args):
@@ -338,6 +381,7 @@ def fit_pi(
     dt: float = 1.0,
     time_constants0=None,
     pad_lags: int | None = None,
+    covariance: str | None = "newey-west",
 ) -> PIFit:
     """Fit thresholds, weights and an output offset (optionally initial states, optionally a creep
     of `n_lags` first-order lags) to one record, all parameters jointly.
@@ -379,11 +423,18 @@ def fit_pi(
       over the fitted stretch); the starts after the first scale them by random factors in
       [1/2, 2] when `key` is given.
     - `pad_lags`: as `pad_plays`, for the lags (at least `n_lags`).
+    - `covariance`: how the parameters' covariance is estimated: `"newey-west"` (the default: a
+      sandwich estimate that stays honest when the residuals are coloured, as a measured record's
+      model error is), `"gauss-newton"` (σ²(JᵀJ)⁻¹, for white residuals) or None (none; the
+      fit's `covariance`, `std_errors` and `undetermined` are then None). See
+      `docs/covariance.md`.
 
     **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
     non-finite data, an input with zero range, or more parameters than fitted samples.
     """
     check_solver(solver)
+    if covariance is not None and covariance not in _cov.METHODS:
+        raise ValueError(f"unknown covariance {covariance!r}; choose one of {_cov.METHODS} or None")
     if n_starts < 1:
         raise ValueError(f"`n_starts` must be at least 1, got {n_starts}")
     if starts_at_once is not None and (
@@ -459,9 +510,9 @@ def fit_pi(
     if not bool(jnp.isfinite(loss[best])):
         raise ValueError("every start of the fit produced non-finite residuals")
     p = jax.tree.map(lambda a: a[best], params)
-    r, w = _constrained(p, positive_weights, r_bound, active)
+    r_all, w_all = _constrained(p, positive_weights, r_bound, active)
     xn = p.get("initial_states", x0)
-    r, w, xn = r[:n_plays], w[:n_plays], xn[:n_plays]
+    r, w, xn = r_all[:n_plays], w_all[:n_plays], xn[:n_plays]
     thresholds = r * s.u_half
     weights = w * s.y_half / s.u_half
     states = s.u_mid + s.u_half * xn
@@ -476,6 +527,15 @@ def fit_pi(
         if fit_initial_states:
             zs = s.u_mid + s.u_half * p["lag_states"][:n_lags]
         creep = Creep(tau, cw, dt, zs)
+    fields = {}
+    if covariance is not None:
+        fields = _cov.fit_fields(covariance, run, p, r_all, w_all, un, yn, mask, s, x0, z0, dt,
+                                 lag_active, fit_initial_states, n_plays, n_lags)
+    unexcited_plays = thresholds >= s.u_half
+    flagged = unexcited_plays
+    if fields:
+        flags = _cov.play_flags(fields["parameter_names"], fields["undetermined"], n_plays)
+        flagged = jnp.asarray(np.asarray(flagged) | flags)
     return PIFit(
         thresholds=thresholds,
         weights=weights,
@@ -483,10 +543,11 @@ def fit_pi(
         initial_states=states,
         rmse=jnp.sqrt(loss[best]) * s.y_half,
         result=jax.tree.map(lambda a: a[best], results),
-        flagged=thresholds >= s.u_half,
+        flagged=flagged,
         n_steps=steps[best],
         start_rmse=jnp.sqrt(loss) * s.y_half,
         creep=creep,
+        **fields,
     )
 
 

@@ -15,6 +15,13 @@ cores, candidates 1-10 take 29 s instead of 41 s on 8027 samples and 47 s instea
 16054. On longer records the solves dominate and padding only adds work (32108 samples: 73 s
 against 68 s), so each candidate keeps its own shape.
 
+A candidate whose fit leaves a parameter undetermined (`PIFit.determined`: the Jacobian's rank,
+or a standard error beyond half the parameter's scale) is never chosen, however well it scores:
+a parameter the record does not pin down (a play at the top of the input's range that barely
+moves, say) makes the model's predictions on other records arbitrary. Such candidates are listed
+in `rejected`; if the chosen model fitted on the whole record turns out undetermined, the next
+candidate in line is taken.
+
 Candidates are tried from the smallest up, and the search stops once `patience` candidates in a
 row have not improved the best score (by more than `tolerance` for held-out error); the larger
 ones are then not fitted at all.
@@ -44,6 +51,7 @@ class ModelSize:
       requested); `scores`: their held-out RMSE or BIC, in the same order.
     - `criterion`: `"holdout"` or `"bic"`.
     - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
+    - `rejected`: the candidates not chosen because a parameter was undetermined.
     """
 
     n_plays: int
@@ -51,6 +59,7 @@ class ModelSize:
     scores: tuple
     criterion: str
     fit: PIFit
+    rejected: tuple = ()
 
 
 def holdout_mask(T: int, holdout: float) -> np.ndarray:
@@ -140,19 +149,23 @@ def select_plays(
             raise ValueError("the held-out block has no used samples (all masked out)")
     n_used = int(np.sum(used > 0))
     since_best = 0
+    rejected: set = set()
     bar = progress(cands, desc="plays", quiet=quiet)
     for n in bar:
         if criterion == "holdout":
             f = fit_n(n, mask=split * used)
             pred = np.asarray(f(u))
             score = float(np.sqrt(np.mean((pred[test] - np.asarray(y)[test]) ** 2)))
-            improved = not scores or score < min(scores) * (1 - tolerance)
         else:
             f = fit_n(n, mask=mask)
             fits[n] = f
             mse = max(float(f.rmse) ** 2, np.finfo(np.float64).tiny)
             score = n_used * np.log(mse) + (per_play * n + 1) * np.log(n_used)
-            improved = not scores or score < min(scores)
+        if not f.determined:
+            rejected.add(n)
+        eligible = [s for m, s in zip(tried, scores) if m not in rejected]
+        slack = tolerance if criterion == "holdout" else 0.0
+        improved = n not in rejected and (not eligible or score < min(eligible) * (1 - slack))
         tried.append(n)
         scores.append(score)
         since_best = 0 if improved else since_best + 1
@@ -160,13 +173,26 @@ def select_plays(
             break
     if hasattr(bar, "close"):
         bar.close()
-    if criterion == "holdout":
-        best = min(scores)
-        chosen = next(n for n, s in zip(tried, scores) if s <= best * (1 + tolerance))
-    else:
-        chosen = tried[int(np.argmin(scores))]
-    fit = fits.get(chosen) or fit_n(chosen, mask=mask)
-    return ModelSize(chosen, tuple(tried), tuple(float(s) for s in scores), criterion, fit)
+    while True:
+        chosen = _choose(tried, scores, rejected, tolerance if criterion == "holdout" else None)
+        fit = fits.get(chosen) or fit_n(chosen, mask=mask)
+        if fit.determined or len(rejected) >= len(tried) - 1:
+            break
+        rejected.add(chosen)
+    return ModelSize(chosen, tuple(tried), tuple(float(s) for s in scores), criterion, fit,
+                     tuple(n for n in tried if n in rejected))
+
+
+def _choose(tried, scores, rejected, tolerance):
+    """The smallest candidate within `tolerance` of the best score (None: the best), among those
+    not rejected; the smallest tried when every one is."""
+    pairs = [(n, s) for n, s in zip(tried, scores) if n not in rejected]
+    if not pairs:
+        return min(tried)
+    best = min(s for _, s in pairs)
+    if tolerance is None:
+        return next(n for n, s in pairs if s == best)
+    return next(n for n, s in pairs if s <= best * (1 + tolerance))
 
 
 def rmse(a, b) -> float:

@@ -5,7 +5,9 @@ first part of the record and scored by its RMSE on the held-out last block, whic
 through from the states the first part left it in. A structure whose parameters the fitted part
 cannot determine (a lag slower than the record, plays the input barely moves) predicts the
 held-out block badly and loses; among candidates within `tolerance` of the best score the smaller
-wins, so the record has to show the gain of every added parameter.
+wins, so the record has to show the gain of every added parameter. A candidate whose fit leaves
+a parameter undetermined (`PIFit.determined`) is never chosen, as in [`select_plays`][]; nor is
+one whose whole-record fit does (the next in line is taken then).
 
 The search is coordinate-wise, to keep the number of fits small (each costs a full nonlinear
 fit): (1) the play count with the fewest lags offered (none by default), as [`select_plays`][]
@@ -37,6 +39,7 @@ class ModelChoice:
     - `n_plays`, `n_lags`: the chosen counts; `structure`: `"pi"` or `"pi+creep"`.
     - `candidates`: the (n_plays, n_lags) pairs tried, in order; `scores`: their held-out RMSE.
     - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
+    - `rejected`: the (n_plays, n_lags) pairs not chosen because a parameter was undetermined.
     """
 
     n_plays: int
@@ -44,6 +47,7 @@ class ModelChoice:
     candidates: tuple
     scores: tuple
     fit: PIFit
+    rejected: tuple = ()
 
     @property
     def structure(self) -> str:
@@ -105,6 +109,7 @@ def select_model(
     fitted = yn[used > 0]
     floor = 1e-8 * max(float(np.std(fitted)), 1e-6 * float(np.max(np.abs(fitted))), 1e-300)
     scores: dict = {}
+    rejected: set = set()
     bar = progress(None, desc="models", quiet=quiet)
 
     def fit_one(n, k, m):
@@ -116,6 +121,8 @@ def select_model(
             f = fit_one(n, k, split * used)
             pred = np.asarray(f(u))
             scores[(n, k)] = float(np.sqrt(np.mean((pred[test] - yn[test]) ** 2)))
+            if not f.determined:
+                rejected.add((n, k))
             if hasattr(bar, "update"):
                 bar.update(1)
         return scores[(n, k)]
@@ -126,20 +133,32 @@ def select_model(
         for v in values:
             s = score(*make(v))
             tried.append((v, s))
-            if s < best * (1 - tolerance) - floor:
+            if make(v) not in rejected and s < best * (1 - tolerance) - floor:
                 best, since = s, 0
             else:
                 since += 1
                 if since >= wait:
                     break
-        best = min(s for _, s in tried)
-        return next(v for v, s in tried if s <= best * (1 + tolerance) + floor)
+        return pick([(make(v), s) for v, s in tried])
+
+    def pick(pairs):
+        """The smallest candidate within tolerance of the best not rejected (else the first)."""
+        ok = [(c, s) for c, s in pairs if c not in rejected] or pairs[:1]
+        best = min(s for _, s in ok)
+        return next(c for c, s in ok if s <= best * (1 + tolerance) + floor)
 
     k_base = lags[0]
-    n = search(plays, patience, lambda v: (v, k_base))
-    k = search(lags, 1, lambda v: (n, v))
+    n, _ = search(plays, patience, lambda v: (v, k_base))
+    n, k = search(lags, 1, lambda v: (n, v))
     if hasattr(bar, "close"):
         bar.close()
-    fit = fit_one(n, k, mask)
+    while True:
+        fit = fit_one(n, k, mask)
+        left = [(c, scores[c]) for c in scores if c not in rejected and c != (n, k)]
+        if fit.determined or not left:
+            break
+        rejected.add((n, k))
+        n, k = pick(left)
     cands = tuple(scores)
-    return ModelChoice(n, k, cands, tuple(scores[c] for c in cands), fit)
+    return ModelChoice(n, k, cands, tuple(scores[c] for c in cands), fit,
+                       tuple(c for c in cands if c in rejected))

@@ -1,0 +1,260 @@
+"""The covariance of a fit's parameters, and which of them the record does not determine.
+
+The parameters are the fitted model's own, in the data's units: thresholds r_2..r_n (r_1 = 0 is
+fixed), weights, the offset, the plays' initial states when fitted (but the first's: the r = 0
+play takes the input's value at the first sample, whatever its state before), and the creep's time
+constants, weights and initial states. The Jacobian J (N x p) of the model's output with respect
+to them is taken at the solution by forward-mode differentiation through the same scan the fit
+minimises (`fit.run`), on the fitted samples (their `mask` weights included).
+
+Two estimates, both on the identifiable subspace (below):
+
+- **Gauss-Newton**: σ² (JᵀJ)⁻¹ with σ² = Σe²/(N - p). Right when the residuals are white.
+- **Newey-West** (the default): the sandwich (JᵀJ)⁻¹ Ω (JᵀJ)⁻¹ · N/(N - p), Ω the long-run
+  covariance of the scores g_t = J_t e_t by overlapping block sums (Bartlett weights) of length
+  b, b from Andrews' AR(1) plug-in rule b = ⌈1.1447 (α N)^{1/3}⌉, α = 4ρ²/((1-ρ)²(1+ρ)²), ρ the
+  residuals' lag-1 autocorrelation, and b at most N/5. A measured record's residuals are mostly
+  model error, smooth over many samples; there σ²(JᵀJ)⁻¹ can be several times too small, while on
+  white residuals ρ ≈ 0, b ≤ 2 and the two estimates agree (the calibration tests check both).
+
+**Identifiability.** J's columns are scaled to unit norm and its singular values below
+max(N, p)·eps·s_max (NumPy's `matrix_rank` rule) are dropped; a parameter with a component of
+more than `NULL_SHARE` in the dropped directions is undetermined, its standard error infinite, and
+the covariance is the pseudo-inverse's, i.e. that of the determined combinations. A parameter is
+also undetermined when its standard error exceeds `RELATIVE_LIMIT` (0.5: its 95 % interval
+reaches past its scale) of its scale: |value| for weights and time constants; for a threshold the
+room it has, the distance to its lower neighbour or to the top of the input's half range,
+whichever is smaller (a play whose threshold may lie beyond the input's reach is not known to
+move); half the output range for the offset, half the input range for initial states.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .fit_data import Scales
+
+METHODS = ("newey-west", "gauss-newton")
+RELATIVE_LIMIT = 0.5
+NULL_SHARE = 1e-4
+
+
+class Layout(eqx.Module):
+    """Where each parameter sits in the flat (padded) parameter vector."""
+
+    n: int = eqx.field(static=True)
+    k: int = eqx.field(static=True)
+    states: bool = eqx.field(static=True)
+
+    def sizes(self):
+        sizes = [("thresholds", self.n - 1), ("weights", self.n), ("offset", 1)]
+        if self.states:
+            sizes.append(("initial_states", self.n))
+        if self.k:
+            sizes += [("creep.time_constants", self.k), ("creep.weights", self.k)]
+            if self.states:
+                sizes.append(("creep.initial_states", self.k))
+        return sizes
+
+    def split(self, theta):
+        out, i = {}, 0
+        for name, m in self.sizes():
+            out[name] = theta[i:i + m]
+            i += m
+        return out
+
+    def names(self, n_used: int, k_used: int):
+        """Names and positions of the parameters of the first `n_used` plays and `k_used` lags."""
+        names, index, i = [], [], 0
+        for name, m in self.sizes():
+            used = {"thresholds": n_used - 1, "offset": 1}.get(name, k_used if "creep" in name else n_used)
+            first = 1 if name == "thresholds" else 0
+            for j in range(m):
+                # The r = 0 play's state is forgotten at the first sample: no parameter.
+                if j < used and name != "initial_states" or 0 < j < used:
+                    names.append(name if name == "offset" else f"{name}[{j + first}]")
+                    index.append(i + j)
+            i += m
+        return tuple(names), np.asarray(index, int)
+
+
+def flatten(layout: Layout, thresholds, weights, offset, states=None, taus=None, lag_weights=None,
+            lag_states=None):
+    """The flat parameter vector in the data's units, in the order of `layout`."""
+    parts = [thresholds[1:], weights, jnp.atleast_1d(offset)]
+    if layout.states:
+        parts.append(states)
+    if layout.k:
+        parts += [taus, lag_weights]
+        if layout.states:
+            parts.append(lag_states)
+    return jnp.concatenate([jnp.asarray(p, weights.dtype).reshape(-1) for p in parts])
+
+
+@eqx.filter_jit
+def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
+    """The model's output (T,) in the data's units and its Jacobian (T, p) at `theta`.
+
+    `run(u, r, w, offset, x0, log_tau, c, z0)` is the fit's model in normalised units; `x0`, `z0`
+    are the normalised states used when they are not parameters.
+    """
+
+    def predict(theta):
+        p = layout.split(theta)
+        w = p["weights"] * s.u_half / s.y_half
+        r = jnp.concatenate([jnp.zeros(1, theta.dtype), p["thresholds"]]) / s.u_half
+        x = (p["initial_states"] - s.u_mid) / s.u_half if layout.states else x0
+        total = jnp.sum(p["weights"])
+        lags = ()
+        if layout.k:
+            c = p["creep.weights"] * s.u_half / s.y_half
+            z = (p["creep.initial_states"] - s.u_mid) / s.u_half if layout.states else z0
+            total = total + jnp.sum(p["creep.weights"])
+            lags = (jnp.log(p["creep.time_constants"] / dt), c, z)
+        # offset = y_mid + y_half c' - u_mid Σ (weights), the inverse of the fit's map to units
+        c0 = (p["offset"][0] - s.y_mid + s.u_mid * total) / s.y_half
+        return s.y_mid + s.y_half * run(u, r, w, c0, x, *lags)
+
+    return predict(theta), jax.jacfwd(predict)(theta)
+
+
+def bandwidth(e) -> int:
+    """Andrews' AR(1) plug-in block length for the Bartlett kernel, 1 <= b <= N/5."""
+    e = np.asarray(e, np.float64)
+    N = e.shape[0]
+    den = float(e @ e)
+    rho = float(e[1:] @ e[:-1]) / den if den > 0 else 0.0
+    rho = min(max(rho, -0.999), 0.999)
+    alpha = 4 * rho**2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
+    b = int(np.ceil(1.1447 * (alpha * N) ** (1 / 3)))
+    return max(1, min(b, N // 5))
+
+
+def estimate(J, e, *, method: str = "newey-west", eps=None):
+    """Covariance of least-squares estimates from the Jacobian `J` (N, p) and residuals `e` (N,).
+
+    **Arguments:** `J`, `e` on the fitted samples; `method`, one of `METHODS`; `eps`, the machine
+    epsilon of the arithmetic J was computed in (default float64's).
+
+    **Returns:** `(covariance (p, p), std_errors (p,), rank_deficient (p,) bool, info)` with
+    `info` a dict (sigma, dof, rank, bandwidth). Standard errors of rank-deficient parameters are
+    inf; the covariance is finite (the pseudo-inverse's).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown covariance method {method!r}; choose one of {METHODS}")
+    J = np.asarray(J, np.float64)
+    e = np.asarray(e, np.float64)
+    N, p = J.shape
+    eps = np.finfo(np.float64).eps if eps is None else float(eps)
+    norms = np.linalg.norm(J, axis=0)
+    d = np.where(norms > 0, norms, 1.0)
+    U, S, Vt = np.linalg.svd(J / d, full_matrices=False)
+    tol = (S[0] if S.size and S[0] > 0 else 1.0) * max(N, p) * eps
+    rank = int(np.sum(S > tol))
+    V = Vt[:rank].T
+    bread = (V / S[:rank] ** 2) @ V.T / np.outer(d, d)  # (JᵀJ)⁺ on the identifiable subspace
+    null = Vt[rank:].T
+    deficient = np.linalg.norm(null, axis=1) > NULL_SHARE if rank < p else np.zeros(p, bool)
+    deficient |= norms == 0
+    dof = N - p
+    info = {"method": method, "dof": dof, "rank": rank, "bandwidth": None}
+    if dof < 1:
+        info["sigma"] = float("nan")
+        return np.zeros((p, p)), np.full(p, np.inf), np.ones(p, bool), info
+    sigma2 = float(e @ e) / dof
+    info["sigma"] = float(np.sqrt(sigma2))
+    if method == "gauss-newton":
+        cov = sigma2 * bread
+    else:
+        b = bandwidth(e)
+        g = J * e[:, None]
+        cs = np.concatenate([np.zeros((1, p)), np.cumsum(g, axis=0)])
+        blocks = cs[b:] - cs[:-b]
+        meat = blocks.T @ blocks / b * N / (N - b + 1)
+        cov = bread @ meat @ bread * N / dof
+        info["bandwidth"] = b
+    cov = 0.5 * (cov + cov.T)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    se[deficient] = np.inf
+    return cov, se, deficient, info
+
+
+def scales(names, values, u_half, y_half):
+    """Each parameter's scale for the relative-error limit (see the module's docstring)."""
+    values = np.asarray(values, np.float64)
+    r = {n: v for n, v in zip(names, values) if n.startswith("thresholds[")}
+    out = np.empty(len(names))
+    for i, (n, v) in enumerate(zip(names, values)):
+        if n.startswith("thresholds["):
+            j = int(n[len("thresholds["):-1])
+            below = v - r.get(f"thresholds[{j - 1}]", 0.0)
+            out[i] = min(below, u_half - v)
+        elif n == "offset":
+            out[i] = y_half
+        elif "initial_states" in n:
+            out[i] = u_half
+        else:
+            out[i] = abs(v)
+    return out
+
+
+def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, fit_states, n_plays,
+               n_lags) -> dict:
+    """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
+    padded; `r`, `w` its thresholds and weights): the Jacobian over every padded parameter (one
+    compilation per padded shape), then the columns of the parameters in use."""
+    # On the host in NumPy: eager JAX operations would each compile once per shape.
+    p, r, w, s_np = (jax.tree.map(np.asarray, a) for a in (p, r, w, s))
+    um, uh, ym, yh = (float(v) for v in (s_np.u_mid, s_np.u_half, s_np.y_mid, s_np.y_half))
+    layout = Layout(r.shape[0], 0 if z0 is None else z0.shape[0], fit_states)
+    parts = [r[1:] * uh, w * yh / uh, None]
+    if fit_states:
+        parts.append(um + uh * p["initial_states"])
+    total = np.sum(parts[1])
+    if layout.k:
+        c = p["lag_weights"] if lag_active is None else p["lag_weights"] * np.asarray(lag_active)
+        parts += [np.exp(p["lag_log_tau"]) * dt, c * yh / uh]
+        total = total + np.sum(parts[-1])
+        if fit_states:
+            parts.append(um + uh * p["lag_states"])
+    parts[2] = np.atleast_1d(ym + yh * p["offset"] - um * total)
+    theta = np.concatenate(parts).astype(np.asarray(un).dtype)
+    pred, J = jacobian(run, layout, theta, un, s, x0, z0, np.asarray(dt, np.asarray(un).dtype))
+    used = np.asarray(mask) > 0
+    m = np.asarray(mask)[used]
+    y = np.asarray(yn)[used] * yh + ym
+    names, index = layout.names(n_plays, n_lags)
+    Ju = np.asarray(J)[used][:, index] * m[:, None]
+    e = (y - np.asarray(pred)[used]) * m
+    cov, se, deficient, _ = estimate(Ju, e, method=method, eps=np.finfo(un.dtype).eps)
+    values = theta[index]
+    scale = scales(names, values, uh, yh)
+    undetermined = deficient | ~(se < RELATIVE_LIMIT * scale)
+    return dict(parameter_names=names, parameter_values=jnp.asarray(values), covariance=jnp.asarray(cov),
+                std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
+                covariance_method=method)
+
+
+def play_flags(names, undetermined, n_plays):
+    """Plays with an undetermined threshold, weight or initial state."""
+    flags = np.zeros(n_plays, bool)
+    for name, bad in zip(names, np.asarray(undetermined)):
+        if bad and name.split("[")[0] in ("thresholds", "weights", "initial_states"):
+            flags[int(name.split("[")[1][:-1])] = True
+    return flags
+
+
+def table(fit) -> str:
+    """A `value ± std error` table of a fit's parameters in Markdown, undetermined ones marked.
+
+    **Arguments:** `fit`, a `PIFit` with a covariance.
+
+    **Returns:** the table's text (one header, one row per parameter).
+    """
+    rows = ["| parameter | value | std error | |", "|---|---|---|---|"]
+    for n, v, s, bad in zip(fit.parameter_names, np.asarray(fit.parameter_values),
+                            np.asarray(fit.std_errors), np.asarray(fit.undetermined)):
+        se = f"± {s:.4g}" if np.isfinite(s) else "undetermined (rank)"
+        rows.append(f"| {n} | {v:.6g} | {se} | {'undetermined' if bad else ''} |")
+    return "\n".join(rows) + "\n"

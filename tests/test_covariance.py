@@ -1,0 +1,234 @@
+"""The fit's parameter covariance: Jacobian against finite differences of the NumPy reference,
+closed-form regression covariance, rank deficiency named, calibration over noise draws."""
+
+import jax
+import numpy as np
+import pytest
+
+import piest_jax as pj
+import reference as ref
+from piest_jax._identification import covariance as _cov
+from piest_jax._identification import fit as _fit
+from piest_jax._identification.fit_data import Scales
+from test_creep import reference_lags
+
+R, W = np.array([0.0, 0.4, 0.9]), np.array([1.0, 0.6, 0.5])
+
+
+def signal(T=300):
+    t = np.linspace(0.0, 2.0, T)
+    return 1.5 * np.sin(2 * np.pi * 2 * t) * (1 - 0.2 * t)
+
+
+def reference_model(u, theta, names, dt, x0, z0):
+    """Output of PI + creep + offset from named parameters, by the NumPy loops."""
+    get = dict(zip(names, theta))
+    n = sum(k.startswith("weights[") for k in names)
+    k = sum(k.startswith("creep.weights[") for k in names)
+    r = np.array([0.0] + [get[f"thresholds[{j}]"] for j in range(1, n)])
+    w = np.array([get[f"weights[{j}]"] for j in range(n)])
+    x = np.array([x0[0]] + [get.get(f"initial_states[{j}]", x0[j]) for j in range(1, n)])
+    y = ref.play(u, r, x) @ w + get["offset"]
+    if k:
+        tau = np.array([get[f"creep.time_constants[{j}]"] for j in range(k)])
+        c = np.array([get[f"creep.weights[{j}]"] for j in range(k)])
+        z = np.array([get.get(f"creep.initial_states[{j}]", z0[j]) for j in range(k)])
+        y = y + reference_lags(u, tau, dt, z) @ c
+    return y
+
+
+@pytest.mark.parametrize("states, lags", [(False, 0), (True, 0), (True, 2)])
+def test_jacobian_matches_finite_differences(states, lags):
+    u = signal(200) + 0.7
+    dt = 0.01
+    s = Scales(*(np.float64(v) for v in (0.5, 1.6, -0.2, 2.5)))
+    layout = _cov.Layout(3, lags, states)
+    x0 = np.array([u[0], u[0] + 0.1, u[0] - 0.3])
+    z0 = np.full(lags, u[0] - 0.2)
+    parts = dict(thresholds=R, weights=W, offset=0.3)
+    if states:
+        parts["states"] = x0
+    if lags:
+        parts.update(taus=np.array([0.05, 0.4]), lag_weights=np.array([0.3, -0.2]), lag_states=z0 + 0.1)
+    theta = np.asarray(_cov.flatten(layout, **{k: np.asarray(v, float) for k, v in parts.items()}))
+    names, index = layout.names(3, lags)
+    assert index.tolist() == [i for i in range(theta.size) if not (states and i == 6)]
+    un = (u - s.u_mid) / s.u_half
+    pred, J = _cov.jacobian(_fit.run, layout, theta, un, s, (x0 - s.u_mid) / s.u_half,
+                            (z0 - s.u_mid) / s.u_half, dt)
+    full = list(layout.sizes())
+    all_names = [f"{n}[{j + (n == 'thresholds')}]" if n != "offset" else n for n, m in full for j in range(m)]
+    np.testing.assert_allclose(pred, reference_model(u, theta, all_names, dt, x0, z0), atol=1e-12)
+    eps = 1e-6
+    for i in index:
+        h = np.zeros_like(theta)
+        h[i] = eps
+        fd = (reference_model(u, theta + h, all_names, dt, x0, z0)
+              - reference_model(u, theta - h, all_names, dt, x0, z0)) / (2 * eps)
+        np.testing.assert_allclose(np.asarray(J)[:, i], fd, atol=1e-6, err_msg=all_names[i])
+
+
+def test_gauss_newton_is_the_regression_covariance_given_the_thresholds():
+    # With the thresholds held at their estimates the model is linear in (weights, offset): the
+    # covariance of those conditional on the thresholds (a Schur complement of the joint one) is
+    # the textbook σ² (AᵀA)⁻¹ with A = [H, 1] built by the NumPy play loop.
+    u = signal()
+    y = ref.play(u, R, u[0]) @ W + 0.3 + 0.02 * np.random.default_rng(0).standard_normal(u.size)
+    f = pj.fit_pi(u, y, 3, thresholds0=R, n_starts=1, covariance="gauss-newton")
+    assert f.parameter_names == ("thresholds[1]", "thresholds[2]", "weights[0]", "weights[1]",
+                                 "weights[2]", "offset")
+    S = np.asarray(f.covariance)
+    t, lin = slice(0, 2), slice(2, 6)
+    cond = S[lin, lin] - S[lin, t] @ np.linalg.solve(S[t, t], S[t, lin])
+    A = np.column_stack([ref.play(u, np.asarray(f.thresholds), u[0]), np.ones(u.size)])
+    e = y - A @ np.asarray(f.parameter_values)[lin]
+    sigma2 = e @ e / (u.size - 6)
+    np.testing.assert_allclose(cond, sigma2 * np.linalg.inv(A.T @ A), rtol=1e-6)
+    np.testing.assert_allclose(f.std_errors, np.sqrt(np.diag(S)), rtol=1e-12)
+
+
+def test_estimate_on_a_linear_regression():
+    rng = np.random.default_rng(1)
+    A = np.column_stack([rng.standard_normal(50), np.ones(50)])
+    e = rng.standard_normal(50)
+    cov, se, bad, info = _cov.estimate(A, e, method="gauss-newton")
+    np.testing.assert_allclose(cov, e @ e / 48 * np.linalg.inv(A.T @ A), rtol=1e-12)
+    assert not bad.any() and info["rank"] == 2
+    # Newey-West with a block of one sample is White's sandwich; on these white residuals the
+    # plug-in block is short.
+    nw, _, _, info = _cov.estimate(A, e, method="newey-west")
+    assert info["bandwidth"] <= 3
+    B = np.linalg.inv(A.T @ A)
+    assert np.allclose(np.diag(nw), np.diag(cov), rtol=0.5)
+    if info["bandwidth"] == 1:
+        np.testing.assert_allclose(nw, B @ (A.T * e**2) @ A @ B * 50 / 48, rtol=1e-12)
+    with pytest.raises(ValueError, match="unknown covariance method 'x'"):
+        _cov.estimate(A, e, method="x")
+
+
+def test_rank_deficient_parameters_are_named_not_nan():
+    # Columns 1 and 2 are collinear and column 3 is zero: three undetermined, one determined.
+    rng = np.random.default_rng(2)
+    a = rng.standard_normal(40)
+    J = np.column_stack([rng.standard_normal(40), a, 2 * a, np.zeros(40)])
+    cov, se, bad, info = _cov.estimate(J, rng.standard_normal(40))
+    assert bad.tolist() == [False, True, True, True] and info["rank"] == 2
+    assert np.all(np.isfinite(cov)) and np.isfinite(se[0]) and np.all(np.isinf(se[1:]))
+
+
+def test_unexcited_play_is_undetermined_and_json_is_null(tmp_path):
+    t = np.linspace(0.0, 2.0, 400)
+    u = np.sin(2 * np.pi * 2 * t)  # thresholds >= 1 are never traversed
+    y = ref.play(u, [0.0, 0.4], 0.0) @ [1.0, 0.5] + 0.01 * np.random.default_rng(3).standard_normal(400)
+    f = pj.fit_pi(u, y, 3, thresholds0=[0.0, 0.4, 1.5], initial_states=0.0)
+    assert f.flagged.tolist() == [False, False, True]
+    assert "weights[2]" in f.undetermined_names and "thresholds[2]" in f.undetermined_names
+    assert "weights[0]" not in f.undetermined_names
+    assert np.all(np.isfinite(f.covariance))
+    rep = pj.write_json(tmp_path / "f.json", {"std_errors": dict(zip(f.parameter_names, f.std_errors))})
+    text = rep.read_text()
+    assert "NaN" not in text and "Infinity" not in text
+
+
+def near_top_record(T=700, seed=0):
+    """The Chandra case in miniature: a sine from rest whose top play's threshold sits 0.2 % below
+    the input's half range, so that the play moves by at most 0.2 % of it, yet carries the
+    largest weight."""
+    t = np.linspace(0.0, 3.5, T)
+    u = np.sin(2 * np.pi * t)
+    half = 0.5 * np.ptp(u)
+    r = np.array([0.0, 0.3 * half, 0.998 * half])
+    y = ref.play(u, r, u[0]) @ [1.0, 0.6, 1.5] + 0.02 * np.random.default_rng(seed).standard_normal(T)
+    return u, y, r
+
+
+def test_play_at_the_top_of_the_range_is_undetermined():
+    u, y, r = near_top_record()
+    f = pj.fit_pi(u, y, 3, thresholds0=r, n_starts=1)
+    assert bool(f.flagged[2]) and not np.any(np.asarray(f.flagged[:2]))
+    assert set(f.undetermined_names) == {"thresholds[2]", "weights[2]"}
+
+
+def test_model_size_never_keeps_an_undetermined_parameter():
+    # With no tolerance the three-play candidate, whose top play the record barely moves, has the
+    # best held-out score; it is rejected, and the two-play model kept.
+    u, y, _ = near_top_record()
+    opts = dict(tolerance=0.0, key=jax.random.key(0))
+    a = pj.select_plays(u, y, (1, 2, 3), patience=None, **opts)
+    b = pj.select_model(u, y, 0.005, (1, 2, 3), (0,), **opts)
+    assert a.scores[2] < a.scores[1] and b.scores[2] < b.scores[1]
+    assert a.rejected == (3,) and b.rejected == ((3, 0),)
+    for sel in (a, b):
+        assert sel.n_plays == 2 and sel.fit.determined and sel.fit.undetermined_names == ()
+
+
+@pytest.mark.parametrize("method", _cov.METHODS)
+def test_calibration_over_noise_draws(method):
+    # 200 white-noise draws: the sample standard deviation of each estimate is then known to
+    # about 1/sqrt(2 * 199) = 5 %, so the 0.8-1.25 band on (mean predicted std error) / (spread)
+    # is more than 4 of its standard errors wide on either side for each of the 6 parameters.
+    # Starting at the true thresholds keeps each fit short; it converges to the least-squares
+    # optimum of its own draw all the same.
+    u = signal()
+    y0 = ref.play(u, R, u[0]) @ W + 0.3
+    noise = 0.01 * np.ptp(y0) * np.random.default_rng(11).standard_normal((200, u.size))
+    est, se = [], []
+    for e in noise:
+        f = pj.fit_pi(u, y0 + e, 3, thresholds0=R, n_starts=1, covariance=method)
+        est.append(np.asarray(f.parameter_values))
+        se.append(np.asarray(f.std_errors))
+    ratio = np.mean(se, axis=0) / np.std(est, axis=0, ddof=1)
+    assert np.all((0.8 < ratio) & (ratio < 1.25)), dict(zip(f.parameter_names, ratio))
+
+
+def test_bad_covariance_name():
+    u = signal()
+    with pytest.raises(ValueError, match="unknown covariance 'sandwich'"):
+        pj.fit_pi(u, u, 2, covariance="sandwich")
+
+
+def test_creep_parameters_have_standard_errors():
+    from test_fit_creep import DT, plant, signal as creep_signal
+
+    u = creep_signal(600)
+    y = plant(u) + 0.002 * np.random.default_rng(5).standard_normal(u.size)
+    f = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, fit_initial_states=True, key=jax.random.key(0))
+    assert f.parameter_names[-3:] == ("creep.time_constants[0]", "creep.weights[0]",
+                                      "creep.initial_states[0]")
+    assert "initial_states[0]" not in f.parameter_names and "initial_states[2]" in f.parameter_names
+    se = dict(zip(f.parameter_names, np.asarray(f.std_errors)))
+    assert 0 < se["creep.time_constants[0]"] < 0.1 * float(f.creep.time_constants[0])
+    assert np.all(np.isfinite(f.covariance)) and f.covariance.shape == (len(f.parameter_names),) * 2
+    # Without covariance the fit is the same and the fields are empty.
+    g = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, fit_initial_states=True, key=jax.random.key(0),
+                  covariance=None)
+    assert g.covariance is None and g.parameter_names == () and g.undetermined_names == ()
+    np.testing.assert_allclose(g.thresholds, f.thresholds, rtol=1e-12)
+
+
+def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, monkeypatch):
+    import json
+
+    from piest_jax._cli import fit as fit_cmd
+    from piest_jax._cli import main
+
+    t = np.linspace(0.0, 2.0, 400)
+    u = np.sin(2 * np.pi * 2 * t)
+    y = ref.play(u, [0.0, 0.4], 0.0) @ [1.0, 0.5] + 0.01 * np.random.default_rng(3).standard_normal(400)
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    real = pj.fit_pi
+    # The solver would move a play out of reach; starting it there and taking no step keeps it.
+    monkeypatch.setattr(fit_cmd, "fit_pi", lambda u, y, n, **kw: real(
+        u, y, n, thresholds0=[0.0, 0.4, 1.5], n_starts=1, max_steps=1, initial_states=0.0))
+    out = tmp_path / "o"
+    assert main(["fit", str(tmp_path / "d.csv"), "--model", "pi", "--plays", "3", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    text = (out / "fit.json").read_text()
+    rep = json.loads(text)
+    assert "NaN" not in text and "Infinity" not in text
+    assert rep["std_errors"]["thresholds[2]"] is None and rep["std_errors"]["weights[0]"] > 0
+    assert "std_errors.thresholds[2]" in rep["non_finite"]
+    assert "thresholds[2]" in rep["undetermined"] and rep["flagged"][2] is True
+    assert "does not determine" in err and "thresholds[2]" in err and "| weights[0] |" in err
+    assert "undetermined (rank)" in (out / "fit.md").read_text()
+    assert pj.load_model(out / "fit.json").thresholds.shape == (3,)
