@@ -28,6 +28,7 @@ need a pass over the record per matrix-vector product.
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 from jax import lax
 from jax.flatten_util import ravel_pytree
@@ -39,6 +40,8 @@ from .._operators.play import play_step
 # Samples per chunk: it divides every padded length from 2^15 samples on (see
 # `fit_data.pad_count`), and J's rows for one chunk, p x CHUNK, stay small.
 CHUNK = 4096
+# Fitted samples on which the starts of a long record are compared (see `solve_starts`).
+SCOUT = 2**16
 # Play steps per scan iteration inside a chunk: fewer loop iterations, the same arithmetic.
 UNROLL = 8
 
@@ -272,25 +275,59 @@ def least_squares(params0, data, st: Settings, max_steps: int):
     return unravel(s.y), s.loss, result, s.steps
 
 
-@eqx.filter_jit
 def solve_starts(r0s, un, yn, x0, mask, r_bound, *, positive_weights, fit_initial_states,
                  max_steps, rtol, atol, active=None, z0=None, log_tau0s=None, lag_active=None,
                  chunk=None):
-    """Every start (r0s (starts, n), log_tau0s (starts, K) or None) solved under `vmap` by the
-    chunked Levenberg-Marquardt; the same arguments and returns as `fit._solve_starts`, and
-    `chunk`, the samples per chunk (default `CHUNK`)."""
-    chunk = CHUNK if chunk is None else chunk
+    """Every start (r0s (starts, n), log_tau0s (starts, K) or None) solved by the chunked
+    Levenberg-Marquardt; the same arguments and returns as `fit._solve_starts`, and `chunk`, the
+    samples per chunk (default `CHUNK`).
+
+    When the record holds more than 2 `SCOUT` fitted samples, the starts are compared on the
+    stretch that holds its first `SCOUT` fitted samples: each is solved there, the best is then
+    solved again on every sample, and the others are scored on every sample as they are. A
+    start that loses on 2^16 samples does not win on more, and the full-record solve from a
+    converged start takes a few steps instead of a few dozen for every start.
+    """
+    chunk = CHUNK if chunk is None else int(chunk)
+    used = np.flatnonzero(np.asarray(mask) > 0)
+    scout = None
+    if r0s.shape[0] > 1 and used.size > 2 * SCOUT:
+        scout = -(-int(used[SCOUT - 1] + 1) // chunk)
+        if 2 * scout * chunk > un.shape[0]:
+            scout = None
     st = Settings(positive_weights, rtol, atol, r_bound, active, lag_active, x0, z0)
-    last = un[-1]
+    return _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps, chunk,
+                         scout)
+
+
+@eqx.filter_jit
+def _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps, chunk, scout):
     # Padding repeats the last input (no play moves) and is masked out, as in `fit_data`.
-    data = (chunked(un, last, chunk), chunked(yn, 0.0, chunk), chunked(mask, 0.0, chunk))
+    data = (chunked(un, un[-1], chunk), chunked(yn, 0.0, chunk), chunked(mask, 0.0, chunk))
 
-    def one(r0, log_tau0):
+    def one(r0, log_tau0, data):
         sol = start_regression(r0, log_tau0, data, st)
-        p0 = _fit._initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states,
-                                  r_bound, active, z0, log_tau0, lag_active, sol=sol)
+        p0 = _fit._initial_params(r0, un, yn, st.x0, mask, st.positive_weights,
+                                  fit_initial_states, st.r_bound, st.active, st.z0, log_tau0,
+                                  st.lag_active, sol=sol)
         params, loss, result, steps = least_squares(p0, data, st, max_steps)
-        loss = jnp.where(jnp.isfinite(loss), loss, jnp.inf)
-        return params, loss, result, steps
+        return params, jnp.where(jnp.isfinite(loss), loss, jnp.inf), result, steps
 
-    return jax.vmap(one)(r0s, log_tau0s)
+    if scout is None:
+        return jax.vmap(lambda r0, k: one(r0, k, data))(r0s, log_tau0s)
+    short = jax.tree.map(lambda a: a[:scout], data)
+    params, loss, results, steps = jax.vmap(lambda r0, k: one(r0, k, short))(r0s, log_tau0s)
+    best = jnp.argmin(loss)
+
+    def full_loss(p):
+        theta, unravel = ravel_pytree(p)
+        return normal_equations(theta, unravel, data, st)[2]
+
+    losses = jax.vmap(full_loss)(params)
+    p, loss, result, more = least_squares(jax.tree.map(lambda a: a[best], params), data, st,
+                                          max_steps)
+    params = jax.tree.map(lambda a, b: a.at[best].set(b), params, p)
+    losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf).at[best].set(
+        jnp.where(jnp.isfinite(loss), loss, jnp.inf))
+    results = jax.tree.map(lambda a, b: b.at[best].set(a), result, results)
+    return params, losses, results, steps.at[best].add(more)
