@@ -180,3 +180,33 @@ def test_starts_compared_on_a_stretch_then_refined_on_all(chunked_fit, monkeypat
     assert b.start_rmse.shape == (4,)
     assert float(b.rmse) == float(np.min(b.start_rmse))
     assert np.all(np.asarray(b.start_rmse) >= float(a.rmse) * (1 - 1e-6))
+
+
+def test_long_fit_reports_its_steps(chunked_fit, monkeypatch):
+    import io
+    import sys
+
+    from piest_jax import _progress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    bars = []
+
+    def recording_bar(total, **kw):
+        bars.append(_progress.bar(total, **kw))
+        return bars[-1]
+
+    monkeypatch.setattr(_ne, "_bar", recording_bar)
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    u, y = record(1000)
+    f = chunked_fit(u, y, 4, key=jax.random.key(0))
+    # One bar per fit, over the step budget, advanced by the compiled solve to the steps taken.
+    assert len(bars) == 1 and bars[0].total == 100
+    assert int(f.n_steps) <= bars[0].n <= 100
+    assert "fit, steps on 1000 samples" in sys.stderr.getvalue()
+    # Not on a terminal: nothing is drawn.
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    chunked_fit(u, y, 4, key=jax.random.key(0))
+    assert sys.stderr.getvalue() == ""

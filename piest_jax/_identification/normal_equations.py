@@ -34,6 +34,7 @@ from jax import lax
 from jax.flatten_util import ravel_pytree
 
 from . import fit as _fit
+from .._progress import bar as _bar
 from .._models.creep import decays, lag_step
 from .._operators.play import play_step
 
@@ -229,11 +230,24 @@ def _damped_step(hess, grad, step_size):
     return V @ ((V.T @ grad) / (jnp.maximum(s, 0.0) + lam))
 
 
-def least_squares(params0, data, st: Settings, max_steps: int):
+# The bar of the fit in progress, advanced from inside the compiled solve (host side only).
+_BARS: list = []
+
+
+def _tick(steps):
+    """Advance the current bar to the largest step count reached (one per start under vmap)."""
+    if _BARS:
+        done = int(np.max(np.asarray(steps)))
+        if done > _BARS[-1].n:
+            _BARS[-1].update(done - _BARS[-1].n)
+
+
+def least_squares(params0, data, st: Settings, max_steps: int, report: bool = False):
     """Levenberg-Marquardt from `params0` on the chunked normal equations.
 
     **Arguments:** `params0`, the starting parameter dict; `data` as for [`normal_equations`][];
-    `st`, the [`Settings`][] (with rtol/atol); `max_steps`, the step budget.
+    `st`, the [`Settings`][] (with rtol/atol); `max_steps`, the step budget; `report`,
+    advance the current progress bar after every step.
 
     **Returns:** `(params, loss, result, steps)`: the accepted parameters, their rᵀr, an
     `optx.RESULTS` code (`successful` or `nonlinear_max_steps_reached`) and the steps taken.
@@ -263,6 +277,8 @@ def least_squares(params0, data, st: Settings, max_steps: int):
         grad = jnp.where(accept, grad_e, s.grad)
         hess = jnp.where(accept, hess_e, s.hess)
         y_eval = y - _damped_step(hess, grad, step_size)
+        if report:
+            jax.debug.callback(_tick, s.steps + 1)
         return _LMState(y, y_eval, loss, grad, hess, step_size, jnp.array(False), terminate,
                         s.steps + 1)
 
@@ -296,8 +312,16 @@ def solve_starts(r0s, un, yn, x0, mask, r_bound, *, positive_weights, fit_initia
         if 2 * scout * chunk > un.shape[0]:
             scout = None
     st = Settings(positive_weights, rtol, atol, r_bound, active, lag_active, x0, z0)
-    return _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps, chunk,
-                         scout)
+    # The bar counts Levenberg-Marquardt steps on all samples (each one pass over the record),
+    # against the budget: its estimate of the time left is an upper bound, as most fits stop
+    # well before `max_steps`.
+    _BARS.append(_bar(max_steps, desc=f"fit, steps on {used.size} samples"))
+    try:
+        out = _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps,
+                            chunk, scout)
+        return jax.block_until_ready(out)
+    finally:
+        _BARS.pop().close()
 
 
 @eqx.filter_jit
@@ -305,18 +329,19 @@ def _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_step
     # Padding repeats the last input (no play moves) and is masked out, as in `fit_data`.
     data = (chunked(un, un[-1], chunk), chunked(yn, 0.0, chunk), chunked(mask, 0.0, chunk))
 
-    def one(r0, log_tau0, data):
+    def one(r0, log_tau0, data, report):
         sol = start_regression(r0, log_tau0, data, st)
         p0 = _fit._initial_params(r0, un, yn, st.x0, mask, st.positive_weights,
                                   fit_initial_states, st.r_bound, st.active, st.z0, log_tau0,
                                   st.lag_active, sol=sol)
-        params, loss, result, steps = least_squares(p0, data, st, max_steps)
+        params, loss, result, steps = least_squares(p0, data, st, max_steps, report)
         return params, jnp.where(jnp.isfinite(loss), loss, jnp.inf), result, steps
 
     if scout is None:
-        return jax.vmap(lambda r0, k: one(r0, k, data))(r0s, log_tau0s)
+        return jax.vmap(lambda r0, k: one(r0, k, data, True))(r0s, log_tau0s)
     short = jax.tree.map(lambda a: a[:scout], data)
-    params, loss, results, steps = jax.vmap(lambda r0, k: one(r0, k, short))(r0s, log_tau0s)
+    params, loss, results, steps = jax.vmap(lambda r0, k: one(r0, k, short, False))(r0s,
+                                                                                     log_tau0s)
     best = jnp.argmin(loss)
 
     def full_loss(p):
@@ -325,7 +350,7 @@ def _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_step
 
     losses = jax.vmap(full_loss)(params)
     p, loss, result, more = least_squares(jax.tree.map(lambda a: a[best], params), data, st,
-                                          max_steps)
+                                          max_steps, report=True)
     params = jax.tree.map(lambda a, b: a.at[best].set(b), params, p)
     losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf).at[best].set(
         jnp.where(jnp.isfinite(loss), loss, jnp.inf))
