@@ -10,11 +10,13 @@ accumulates
 carrying the plays' states (and the creep lags') from one chunk to the next together with their
 forward-mode sensitivities d(state)/dθ (p, n): inside a chunk, `jax.jvp` of the chunk's
 residuals, vmapped over the p basis directions and started from the carried sensitivities, gives
-that chunk's rows of J exactly (the chain rule across the chunk boundary). Peak memory is
-O(CHUNK x p) per start, whatever T is, and the time is linear in T.
+that chunk's rows of J exactly (the chain rule across the chunk boundary). Besides a few copies
+of the record itself, peak memory is O(CHUNK x p) per start, whatever T is, and the time of a
+pass is linear in T.
 
 The solver is a compact Levenberg-Marquardt on the p x p system that takes the same steps as
-`optx.LevenbergMarquardt` on the full residuals: the same damping (λ = 1/step size, the
+`optx.LevenbergMarquardt` on the full residuals, up to rounding (it solves the damped normal
+equations by an eigendecomposition where optimistix factors [J; √λ I] by QR): the same damping (λ = 1/step size, the
 classical trust region's accept/grow/shrink rule with cutoffs 0.01/0.99 and factors 3.5/0.25)
 and the same convergence test (the max-norm Cauchy test on the parameters and on every
 residual, rtol/atol as in `fit_pi`); the residual test needs the previous accepted point's
