@@ -17,7 +17,8 @@ user units exactly: r = u_half r', w = (y_half/u_half) w', states x = u_mid + u_
 
 Starts: the weights of each start are the linear least-squares solution on a grid of thresholds;
 several grids are solved at once by `vmap` (in batches on long records, to bound memory) and the
-best final fit is kept. The fit is differentiable with respect to the data in forward and reverse
+best final fit is kept. Levenberg-Marquardt fits of records longer than `LONG_RECORD` samples
+never form the Jacobian: `normal_equations.py` accumulates JᵀJ and Jᵀr chunk by chunk. The fit is differentiable with respect to the data in forward and reverse
 mode: optimistix differentiates the solution implicitly at the optimum.
 
 Identifiability (paper Assumption 1): a play whose threshold is at or above half the input's
@@ -261,27 +262,30 @@ def _grid(n, n_starts, dtype, key):
 
 
 def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_bound=None,
-                    active=None, z0=None, log_tau0=None, lag_active=None):
+                    active=None, z0=None, log_tau0=None, lag_active=None, sol=None):
+    """The starting parameters; `sol`, when given, is the weights' least-squares solution
+    (play weights, lag weights, offset) already computed (the long-record path's, by chunks)."""
     n = r0.shape[0]
     # With padded arrays, n counts the active plays only (a traced number); the padding's
     # regressor columns are zero, so least squares gives them no weight.
     on = jnp.ones(n, r0.dtype) if active is None else active
     n_on = n if active is None else jnp.sum(active)
     top = n - 1 if active is None else jnp.sum(active).astype(int) - 1
+    if sol is None:
 
-    def step(x, ut):
-        x = play_step(x, ut, r0)
-        return x, x
+        def step(x, ut):
+            x = play_step(x, ut, r0)
+            return x, x
 
-    _, Hm = lax.scan(step, x0, u)
-    cols = [Hm * on]
-    if log_tau0 is not None:
-        # The lags at their starting time constants are regressors too: their weights start at
-        # the joint least-squares solution.
-        k_on = jnp.ones_like(log_tau0) if lag_active is None else lag_active
-        cols.append(lag_states(u, decays(log_tau0, 1.0), z0) * k_on)
-    A = jnp.concatenate([*cols, jnp.ones_like(u)[:, None]], axis=1) * mask[:, None]
-    sol = jnp.linalg.lstsq(A, y * mask)[0]
+        _, Hm = lax.scan(step, x0, u)
+        cols = [Hm * on]
+        if log_tau0 is not None:
+            # The lags at their starting time constants are regressors too: their weights start
+            # at the joint least-squares solution.
+            k_on = jnp.ones_like(log_tau0) if lag_active is None else lag_active
+            cols.append(lag_states(u, decays(log_tau0, 1.0), z0) * k_on)
+        A = jnp.concatenate([*cols, jnp.ones_like(u)[:, None]], axis=1) * mask[:, None]
+        sol = jnp.linalg.lstsq(A, y * mask)[0]
     w, c = sol[:n], sol[-1]
     if positive_weights:
         w = _softplus_inv(jnp.maximum(w, 1e-2 / n_on))
@@ -342,6 +346,25 @@ def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
     return lax.map(fn, (r0s, log_tau0s, *data), batch_size=batch)
 
 
+# Above this many (padded) samples a Levenberg-Marquardt fit accumulates the normal equations
+# chunk by chunk (`normal_equations.py`): memory stays at a few MB per start instead of about
+# 1 kB per sample and start (256 MB for four starts at 2^16), and it runs 2-4x faster (measured
+# from 2*10^3 to 10^5 samples, experiments/README.md). Below it the in-memory optimistix solve is
+# kept: its memory is modest there, `_solve_starts` is differentiable in reverse mode (implicit
+# differentiation at the optimum), and short-record fits stay exactly as they were.
+LONG_RECORD = 2**16
+
+
+# The in-memory solve takes starts_at_once x T near this many samples (see `fit_pi`).
+STARTS_BUDGET = 2**20
+
+
+def default_starts_at_once(T: int) -> int:
+    """How many starts the in-memory solve takes at once for a (padded) record of T samples:
+    starts x T near `STARTS_BUDGET`, and at least 1."""
+    return max(1, STARTS_BUDGET // max(int(T), 1))
+
+
 def initial_time_constants(n_lags: int, dt: float, duration: float):
     """Starting time constants for `n_lags` creep lags, log-spaced across the record.
 
@@ -396,7 +419,10 @@ def fit_pi(
     - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`, or an optimistix
       least-squares solver or minimiser object, used as given with its own tolerances.
     - `n_starts`: starting threshold grids, solved under `vmap` (see `starts_at_once`); the best
-      is kept.
+      is kept. On a Levenberg-Marquardt fit with more than 2^17 fitted samples the starts are
+      compared on the stretch holding the first 2^16 fitted samples; the best is then fitted
+      again on every sample (its final parameters and RMSE are from all samples), and the
+      others' `start_rmse` is their RMSE on all samples as they stood.
     - `key`: a PRNG key; when given, starts after the first use random threshold spacings.
     - `thresholds0`: (n,) starting thresholds (r_1 = 0, increasing) instead of the grids.
     - `mask`: (T,) weights on the samples' residuals, 0 to hold a sample out (it still drives
@@ -404,11 +430,13 @@ def fit_pi(
     - `max_threshold`: an upper bound on every threshold (data units), kept by construction;
       e.g. a fraction of half the input range, where plays are barely excited (default none).
     - `max_steps`, `rtol`, `atol`: the solver's budget and tolerances (normalised units).
-    - `starts_at_once`: how many starts are solved together under `vmap`; further ones follow
-      batch by batch. Memory grows with `starts_at_once` x T (about 1 kB per sample and start in
-      float64, mostly the residuals' Jacobian and its factorisation), so the default keeps
-      `starts_at_once` x T near 2^20 samples: all starts at once for records up to 2^18 samples,
-      one at a time from 2^20.
+    - `starts_at_once`: how many starts the in-memory solve takes together under `vmap`;
+      further ones follow batch by batch. Memory grows with `starts_at_once` x T (about 1 kB per
+      sample and start in float64, mostly the residuals' Jacobian and its factorisation), so the
+      default keeps `starts_at_once` x T near 2^20 samples. Levenberg-Marquardt fits of records
+      longer than `LONG_RECORD` (2^16) samples do not hold the Jacobian at all: they accumulate
+      the normal equations chunk by chunk, all starts at once, in memory that does not grow
+      with T, and ignore this setting (such a fit is not differentiable in reverse mode).
     - `pad_plays`: solve with arrays for this many plays (at least `n_plays`), the extra ones
       inactive, so that fits with different `n_plays` share one compilation (as
       [`select_plays`][] does on short records); the result is the same fit up to rounding (a
@@ -498,14 +526,20 @@ def fit_pi(
         r_bound = jnp.asarray(float(max_threshold), un.dtype) / s.u_half
         if r_start is not None and float(r_start[-1]) >= float(r_bound):
             raise ValueError("`thresholds0` must lie below `max_threshold`")
-    if starts_at_once is None:
-        starts_at_once = max(1, 2**20 // un.shape[0])
-    params, loss, results, steps = _solve_starts(
-        r0s, un, yn, x0, mask, r_bound, solver=solver, positive_weights=positive_weights,
-        fit_initial_states=fit_initial_states, max_steps=max_steps, rtol=rtol, atol=atol,
-        batch=min(int(starts_at_once), r0s.shape[0]), active=active, z0=z0,
-        log_tau0s=log_tau0s, lag_active=lag_active,
-    )
+    common = dict(positive_weights=positive_weights, fit_initial_states=fit_initial_states,
+                  max_steps=max_steps, rtol=rtol, atol=atol, active=active, z0=z0,
+                  log_tau0s=log_tau0s, lag_active=lag_active)
+    if solver == "lm" and un.shape[0] > LONG_RECORD:
+        from .normal_equations import solve_starts
+
+        params, loss, results, steps = solve_starts(r0s, un, yn, x0, mask, r_bound, **common)
+    else:
+        if starts_at_once is None:
+            starts_at_once = default_starts_at_once(un.shape[0])
+        params, loss, results, steps = _solve_starts(
+            r0s, un, yn, x0, mask, r_bound, solver=solver,
+            batch=min(int(starts_at_once), r0s.shape[0]), **common,
+        )
     best = int(jnp.argmin(loss))
     if not bool(jnp.isfinite(loss[best])):
         raise ValueError("every start of the fit produced non-finite residuals")
