@@ -529,7 +529,7 @@ def fit_pi(
     common = dict(positive_weights=positive_weights, fit_initial_states=fit_initial_states,
                   max_steps=max_steps, rtol=rtol, atol=atol, active=active, z0=z0,
                   log_tau0s=log_tau0s, lag_active=lag_active)
-    if solver == "lm" and un.shape[0] > LONG_RECORD:
+    if isinstance(solver, str) and solver == "lm" and un.shape[0] > LONG_RECORD:
         from .normal_equations import solve_starts
 
         params, loss, results, steps = solve_starts(r0s, un, yn, x0, mask, r_bound, **common)
