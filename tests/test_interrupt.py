@@ -32,7 +32,9 @@ _JOBS = {
 
 _WRAPPER = textwrap.dedent(
     """
-    import importlib, sys
+    import importlib, signal, sys
+    # A shell's background job starts with SIGINT ignored, which this child would inherit.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     module, attr, argv = sys.argv[1], sys.argv[2], sys.argv[3:]
     owner = importlib.import_module(module)
     *path, name = attr.split(".")
@@ -73,9 +75,9 @@ def _start(inputs, command, out, extra=()):
     argv = [a.format(rec=inputs / "rec.csv", model=inputs / "model.json") for a in argv]
     return subprocess.Popen(
         [sys.executable, str(inputs / "wrapper.py"), module, attr, *argv, "--out", str(out), "--quiet", *extra],
+        # No `preexec_fn`: it runs the parent's fork hooks, and JAX's warns (an error here) once
+        # JAX runs threads in this test process.
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        # A shell's background job starts with SIGINT ignored, which the child would inherit.
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
 
 
