@@ -13,7 +13,6 @@ import tempfile
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-
 # AVX2 + FMA are used only when a probe built with those flags runs correctly here, so the flags
 # can never yield a kernel that faults on the machine that built it (a CPU or OS without AVX, a
 # compiler without the flags, or a non-x86 target all make the probe fail, and the build goes on

@@ -167,12 +167,12 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._estimation.rls import ContinuousRLS as ContinuousRLS
     from ._estimation.rls import ForgettingRLS as ForgettingRLS
     from ._excitation.condition import sharper_condition as sharper_condition
+    from ._excitation.draw_metrics import draw_statistics as draw_statistics
     from ._excitation.exact_condition import EventRows as EventRows
     from ._excitation.exact_condition import ExactCondition as ExactCondition
     from ._excitation.exact_condition import event_rows as event_rows
     from ._excitation.exact_condition import exact_condition as exact_condition
     from ._excitation.exact_condition import pe_margin as pe_margin
-    from ._excitation.draw_metrics import draw_statistics as draw_statistics
     from ._excitation.families import FAMILIES as INPUT_FAMILIES  # noqa: F401
     from ._excitation.families import draw_case as draw_case
     from ._excitation.map_report import summarise as summarise
@@ -197,6 +197,9 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.signals import sine as sine
     from ._excitation.signals import time_grid as time_grid
     from ._excitation.signals import triangle as triangle
+    from ._identification.compare import Comparison as Comparison
+    from ._identification.compare import compare as compare
+    from ._identification.compare import fit_percent as fit_percent
     from ._identification.compensate import Compensation as Compensation
     from ._identification.compensate import admissible_states as admissible_states
     from ._identification.compensate import evaluate_compensation as evaluate_compensation
@@ -204,21 +207,18 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.compensate import linear_feedforward as linear_feedforward
     from ._identification.fit import PIFit as PIFit
     from ._identification.fit import fit_pi as fit_pi
+    from ._identification.fit import initial_time_constants as initial_time_constants
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
     from ._identification.model_file import load_model as load_model
     from ._identification.model_file import save_model as save_model
     from ._identification.model_size import ModelSize as ModelSize
-    from ._identification.pi_model import PIModel as PIModel
-    from ._identification.compare import Comparison as Comparison
-    from ._identification.compare import compare as compare
-    from ._identification.compare import fit_percent as fit_percent
-    from ._identification.fit import initial_time_constants as initial_time_constants
+    from ._identification.model_size import select_plays as select_plays
     from ._identification.model_structure import ModelChoice as ModelChoice
     from ._identification.model_structure import select_model as select_model
+    from ._identification.pi_model import PIModel as PIModel
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
-    from ._identification.model_size import select_plays as select_plays
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
     from ._operators.pi import PIOperator as PIOperator

@@ -14,8 +14,8 @@ import matplotlib.figure
 import numpy as np
 import pytest
 
-from piest_jax._cli import output as _io
 from piest_jax._cli import COMMANDS, main
+from piest_jax._cli import output as _io
 
 SIM = ["--duration", "0.2", "--dt", "0.002", "--quiet"]
 
@@ -248,7 +248,8 @@ def test_nan_is_null_and_flagged_and_json_stays_strict(tmp_path):
 
 
 def test_inside_a_transaction_non_finite_results_are_refused(tmp_path):
-    with pytest.raises(_io.NonFiniteError, match=r"^the result is not finite: fit\.rmse = nan in r\.json; nothing was written$"):
+    msg = r"^the result is not finite: fit\.rmse = nan in r\.json; nothing was written$"
+    with pytest.raises(_io.NonFiniteError, match=msg):
         with _io.output_transaction():
             _io.write_text(tmp_path / "a.txt", "first\n")
             _io.write_json(tmp_path / "r.json", {"fit": {"rmse": np.nan, "w": [1.0]}})

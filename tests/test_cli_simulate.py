@@ -5,11 +5,10 @@ import re
 
 import numpy as np
 import pytest
+import reference as ref
 
 from piest_jax._cli import main
 from piest_jax._data.record import load_record
-
-import reference as ref
 
 
 def _run(capsys, *argv):

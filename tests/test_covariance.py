@@ -4,13 +4,13 @@ closed-form regression covariance, rank deficiency named, calibration over noise
 import jax
 import numpy as np
 import pytest
+import reference as ref
+from test_creep import reference_lags
 
 import piest_jax as pj
-import reference as ref
 from piest_jax._identification import covariance as _cov
 from piest_jax._identification import fit as _fit
 from piest_jax._identification.fit_data import Scales
-from test_creep import reference_lags
 
 R, W = np.array([0.0, 0.4, 0.9]), np.array([1.0, 0.6, 0.5])
 
@@ -188,7 +188,8 @@ def test_bad_covariance_name():
 
 
 def test_creep_parameters_have_standard_errors():
-    from test_fit_creep import DT, plant, signal as creep_signal
+    from test_fit_creep import DT, plant
+    from test_fit_creep import signal as creep_signal
 
     u = creep_signal(600)
     y = plant(u) + 0.002 * np.random.default_rng(5).standard_normal(u.size)

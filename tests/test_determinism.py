@@ -9,10 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import reference as ref
 
 from piest_jax._cli import main
-
-import reference as ref
 
 # Keys that report how long something took on this machine, not a result.
 _TIMING = re.compile(r"^(wall|elapsed|timing|runtime)|_(wall|elapsed|seconds)(_s)?$|^(seconds|time_s|wall_s)$")

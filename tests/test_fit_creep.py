@@ -3,10 +3,10 @@
 import jax
 import numpy as np
 import pytest
-
-import piest_jax as pj
 from test_creep import reference_lags
 from test_fit import reference_pi
+
+import piest_jax as pj
 
 R, W = np.array([0.0, 0.5, 1.2]), np.array([1.0, 0.6, 0.4])
 TAU, C = np.array([0.4]), np.array([0.5])
@@ -181,7 +181,8 @@ def test_cli_fit_and_compensate_with_creep(tmp_path, capsys):
     model = pj.load_model(out / "fit.json")
     assert isinstance(model, pj.HysteresisModel) and model.structure == "pi+creep"
     y_fit = plant(u)
-    assert float(np.sqrt(np.mean((np.asarray(model(u)) - y_fit) ** 2))) == pytest.approx(rep["rmse"], rel=1e-6, abs=1e-12)
+    rmse = float(np.sqrt(np.mean((np.asarray(model(u)) - y_fit) ** 2)))
+    assert rmse == pytest.approx(rep["rmse"], rel=1e-6, abs=1e-12)
     again = pj.load_model(pj.save_model(tmp_path / "again.json", model))
     np.testing.assert_allclose(np.asarray(again(u)), np.asarray(model(u)), rtol=0, atol=1e-12)
     # piest compensate reads the creep and inverts PI + creep.

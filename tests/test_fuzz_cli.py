@@ -21,19 +21,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import reference as ref
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._cli import COMMANDS, build_parser, main
 from piest_jax._cli import compensate as compensate_cmd
 from piest_jax._cli import fit as fit_cmd
 from piest_jax._cli import montecarlo as montecarlo_cmd
 from piest_jax._cli import reproduce as reproduce_cmd
 from piest_jax._cli import simulate as simulate_cmd
+from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._estimation import online as _online
-
-import reference as ref
 
 NAMES = [m.NAME for m in COMMANDS]
 
@@ -126,7 +125,8 @@ def _bad_files():
         ("inf", edit(200, f"{float(t[198])!r},1,-inf"), "row 200: column `y` holds -inf"),
         ("repeat_t", edit(9, f"{float(t[6])!r},1,1"), "row 9: time is not strictly increasing"),
         ("backwards_t", edit(50, "0.2,1,1"), "row 50: time is not strictly increasing: t = 0.2 goes backwards"),
-        ("gap", "t,u,y\n" + "".join(f"{float(a + (a > 1) * 0.5)!r},{float(b)!r},{float(c)!r}\n" for a, b, c in zip(t, u, y)),
+        ("gap", "t,u,y\n" + "".join(f"{float(a + (a > 1) * 0.5)!r},{float(b)!r},{float(c)!r}\n"
+                                     for a, b, c in zip(t, u, y)),
          "row 103: non-uniform sampling"),
         ("one_sample", "t,u,y\n0,1,2\n", "only 1 sample"),
         ("short_row", edit(5, "0.03,1"), "row 5: expected 3 cells as in the header, found 2"),

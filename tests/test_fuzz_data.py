@@ -134,7 +134,8 @@ def test_every_damaged_file_names_file_row_and_problem(tmp_path):
         ("t,u,x\n0,1,2\n", r", row 1: missing column\(s\) y: the header has t, u, x"),
         ("t,u,y,u\n0,1,2,3\n", r", row 1: duplicated column name\(s\) in the header: u"),
         ("t,u,y\n0,1,2\n", r": only 1 sample; at least 8 are needed"),
-        ("t,u,y,note\n" + "".join(f"{k},1,2,ok\n" for k in range(9)), r", row 2: cell 4 is not a number: 'ok' \(column `note`\)"),
+        ("t,u,y,note\n" + "".join(f"{k},1,2,ok\n" for k in range(9)),
+         r", row 2: cell 4 is not a number: 'ok' \(column `note`\)"),
     ],
 )
 def test_structural_problems(tmp_path, text, pattern):

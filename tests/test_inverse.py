@@ -6,11 +6,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import reference as ref
 from hypothesis import given, settings
 
 import piest_jax as pj
-
-import reference as ref
 
 T = 25
 N = 4

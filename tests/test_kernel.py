@@ -20,12 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import reference as ref
 from hypothesis import given
 
 import piest_jax as pj
 from piest_jax._operators.kernel import binding as K
-
-import reference as ref
 
 needs_kernel = pytest.mark.skipif(
     not K.available(),

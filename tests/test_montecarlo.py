@@ -14,8 +14,8 @@ import pytest
 from reference import play as ref_play
 
 import piest_jax as pj
-from piest_jax._excitation import montecarlo as M
 from piest_jax._cli import main
+from piest_jax._excitation import montecarlo as M
 from piest_jax._excitation.families import FAMILIES, draw_case
 from piest_jax._excitation.signals import triangle
 

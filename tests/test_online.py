@@ -10,12 +10,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import reference as ref
 
 import piest_jax as pj
-from piest_jax._cli import main
 from piest_jax import estimate_record, settled_start
-
-import reference as ref
+from piest_jax._cli import main
 
 R = np.array([0.0, 0.4, 0.9, 1.5])
 W = np.array([1.0, 0.6, 0.4, 0.3])
@@ -45,7 +44,8 @@ def test_chunks_equal_one_scan_over_the_record(chunk):
     # The kept trajectory is the reference's at the kept instants.
     k = np.round(np.asarray(res.t) / DT).astype(int)
     assert k[-1] == len(u) - 1
-    assert np.allclose(res.weights_trajectory, np.asarray(whole.weights)[k, :4] * b / a, rtol=2e-4, atol=2e-4 * np.max(np.abs(w_ref)))
+    assert np.allclose(res.weights_trajectory, np.asarray(whole.weights)[k, :4] * b / a, rtol=2e-4,
+                       atol=2e-4 * np.max(np.abs(w_ref)))
     # PE levels and the certificate, window by window, as the whole-record functions give them.
     levels = pj.windowed_pe_levels(jnp.asarray(H), 50, stride=50)
     assert np.allclose(res.pe_levels, levels, rtol=1e-3, atol=1e-7)
@@ -137,7 +137,8 @@ def test_cli_writes_the_report(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "extra, match",
-    [(["--thresholds", "1,0.5"], "start at 0 and increase"), (["--estimator", "forgetting", "--forgetting", "2"], "(0, 1]"),
+    [(["--thresholds", "1,0.5"], "start at 0 and increase"),
+     (["--estimator", "forgetting", "--forgetting", "2"], "(0, 1]"),
      (["--forgetting", "0.5"], "--forgetting is a setting of --estimator forgetting, not of --estimator rls"),
      (["--start", "-1"], "time >= 0"), (["--start", "99"], "fewer than 2 samples"),
      (["--from-fit", "nope.json"], "cannot read"), (["--window", "1000"], "--window")],

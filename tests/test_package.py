@@ -149,7 +149,6 @@ def test_lazy_exports_and_the_type_checking_imports_agree():
     # A name in one and not the other, or mapped to another object, is a silent API split.
     import ast
     import importlib
-
     from pathlib import Path
 
     src = Path(pj.__file__).read_text()

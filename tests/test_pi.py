@@ -7,10 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import reference as ref
 
 import piest_jax as pj
-
-import reference as ref
 
 T = 30
 N = 5

@@ -8,11 +8,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import reference as ref
 from hypothesis import given
 
 import piest_jax as pj
-
-import reference as ref
 
 T = 24
 N = 4

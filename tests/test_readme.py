@@ -11,7 +11,8 @@ blocks are run after its blocks, as one reader's session.
   ones under test). Two blocks are special: the main command between the `main-command` markers
   creates a virtual environment and installs the package, which is what this test runs in
   already, so only its `piest` commands are run; the test command between the `test-command`
-  markers is what CI runs (`.ci/run` runs the same command and refuses to start if they differ), so here it is only checked.
+  markers is what CI runs (`.ci/run` runs the same command and refuses to start if they differ),
+  so here it is only checked.
 - ```bibtex blocks are checked for balanced braces and the paper's DOI. A block in any other
   language fails the test: nothing in the README goes unchecked.
 - Every `piest ...` command in a shell block (and every `example:` line of a command's help) is

@@ -121,7 +121,8 @@ def test_refinement_recovers_parameters_off_the_grid(true, start):
     for k, v in true.items():
         got = r.cfg[k]
         want = np.atleast_1d(np.asarray(v if not isinstance(v, tuple) or not isinstance(v[0], str) else v[1:], float))
-        have = np.atleast_1d(np.asarray(got if not isinstance(got, tuple) or not isinstance(got[0], str) else got[1:], float))
+        plain = not isinstance(got, tuple) or not isinstance(got[0], str)
+        have = np.atleast_1d(np.asarray(got if plain else got[1:], float))
         np.testing.assert_allclose(have, want, rtol=1e-8, err_msg=k)
 
 

@@ -13,12 +13,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import reference as ref
 
 import piest_jax as pj
-from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._data.record import Record
-
-import reference as ref
+from piest_jax._diagnosis import diagnose as _diagnose
 
 SCALES = [1e-6, 1.0, 1e6]
 PAIRS = [(su, sy) for su in SCALES for sy in SCALES]
@@ -172,7 +171,8 @@ def test_diagnosis_accepts_any_scale_and_refuses_flat_signals():
             assert all(np.isfinite(v) and v != 0 for v in (sc.u_half, sc.y_half, sc.rate_scale))
             assert sc.u_half == pytest.approx(0.5 * np.ptp(su * u), rel=1e-12)
             assert sc.y_half == pytest.approx(0.5 * np.ptp(sy * y), rel=1e-12)
-    for bad, match in [((t, np.full_like(u, 1e-9), y), "input u is constant"), ((t, u, np.full_like(y, 1e9)), "constant output")]:
+    cases = [((t, np.full_like(u, 1e-9), y), "input u is constant"), ((t, u, np.full_like(y, 1e9)), "constant output")]
+    for bad, match in cases:
         with pytest.raises(ValueError, match=match):
             _diagnose.check_record(Record(*bad, source="flat"))
 

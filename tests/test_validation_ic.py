@@ -26,7 +26,8 @@ def _record(n=1500, seed=0):
 
 def _model(cfg, seed=1):
     rng = np.random.default_rng(seed)
-    w = np.concatenate([rng.uniform(0.05, 0.3, _basis.N_PLAYS), [0.1], rng.uniform(0.1, 0.3, len(cfg.get("creep", ())))])
+    n_creep = len(cfg.get("creep", ()))
+    w = np.concatenate([rng.uniform(0.05, 0.3, _basis.N_PLAYS), [0.1], rng.uniform(0.1, 0.3, n_creep)])
     return dict(cfg=cfg, coef=w, coef_v=w, norm=(0.0, 1.0))
 
 

@@ -2,14 +2,13 @@
 
 import argparse
 import contextlib
+import importlib
 import io
 import os
 import signal
 import sys
 import threading
 from pathlib import Path
-
-import importlib
 
 from . import interrupt as _interrupt
 from . import output as _io

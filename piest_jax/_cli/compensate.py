@@ -4,13 +4,13 @@ import sys
 
 import numpy as np
 
-from . import memory
-from . import output as _io
-from .._identification.compensate import admissible_states, feedforward
 from .._data.columns import base_name
 from .._data.record import load_columns
+from .._identification.compensate import admissible_states, feedforward
 from .._models.composite import HysteresisModel
 from .._operators.pi import PIOperator
+from . import memory
+from . import output as _io
 from ._common import CLIError, add_output_options, columns_arg, finite_float
 
 NAME = "compensate"

@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from . import memory
-from . import output as _io
 from .._data.record import load_record
 from .._diagnosis.effects import EFFECT, EFFECTS, RECORD_SPECIFIC
 from .._report import json_text
+from . import memory
+from . import output as _io
 from ._common import CLIError, add_output_options, add_record_options
 
 NAME = "diagnose"

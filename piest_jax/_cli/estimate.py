@@ -3,9 +3,9 @@
 
 import numpy as np
 
+from .._data.record import load_record
 from . import memory
 from . import output as _io
-from .._data.record import load_record
 from ._common import CLIError, add_output_options, add_record_options, float_list, positive_float, positive_int
 
 NAME = "estimate"

@@ -5,8 +5,6 @@ import sys
 
 import numpy as np
 
-from . import memory
-from . import output as _io
 from .._data.record import load_record
 from .._identification.compare import compare
 from .._identification.covariance import table as parameter_table
@@ -14,8 +12,16 @@ from .._identification.fit import SOLVERS, fit_pi
 from .._identification.model_file import model_keys
 from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select_plays
 from .._identification.model_structure import select_model
+from . import memory
+from . import output as _io
 from ._common import (
-    CLIError, add_output_options, add_record_options, finite_float, float_list, positive_float, positive_int,
+    CLIError,
+    add_output_options,
+    add_record_options,
+    finite_float,
+    float_list,
+    positive_float,
+    positive_int,
     seed,
 )
 

@@ -3,12 +3,12 @@
 import jax
 import numpy as np
 
-from . import memory
-from . import output as _io
 from .._excitation.families import DEFAULT_FAMILIES, FAMILIES
 from .._excitation.map_report import summarise
 from .._excitation.map_settings import make_settings, numerical_tolerance
 from .._excitation.montecarlo import pe_map
+from . import memory
+from . import output as _io
 from ._common import CLIError, add_output_options, positive_float, positive_int, seed
 
 NAME = "montecarlo"

@@ -1,7 +1,7 @@
 """`piest reproduce`: the paper's Figs. 5 and 6 (continuous-time RLS on a three-play PI operator)."""
 
-from . import output as _io
 from .._estimation.reproduce import DEFAULT_P0, FIGURES, figure, public_report, reproduce
+from . import output as _io
 from ._common import add_output_options, positive_float
 
 NAME = "reproduce"

@@ -2,13 +2,19 @@
 
 import numpy as np
 
+from .._data.record import load_record
+from .._excitation import signals as _signals
+from .._operators.pi import PIOperator
 from . import memory
 from . import output as _io
-from .._excitation import signals as _signals
-from .._data.record import load_record
-from .._operators.pi import PIOperator
 from ._common import (
-    CLIError, add_output_options, add_record_options, finite_float, float_list, positive_float, positive_int,
+    CLIError,
+    add_output_options,
+    add_record_options,
+    finite_float,
+    float_list,
+    positive_float,
+    positive_int,
 )
 
 NAME = "simulate"

@@ -24,10 +24,10 @@ from jax import lax
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from .. import _checks
+from .._operators.play import play
 from .certificate import noise_covariance
 from .estimators import AbstractEstimator
 from .gradient import NormalisedGradient
-from .._operators.play import play
 from .rls import NORMALISATIONS, WINDUPS, ContinuousRLS, ForgettingRLS
 
 ESTIMATORS = ("continuous", "forgetting", "gradient")

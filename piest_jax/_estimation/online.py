@@ -206,7 +206,8 @@ def estimate_record(
         valid = jnp.asarray(np.arange(chunk) < size)
         # Padding repeats the last input, which moves no play: the carried state is exact.
         x, Hn = _regressor_chunk(jnp.asarray(uc, dtype), rj, x, jnp.asarray(a, dtype), offset)
-        state, w, e, lo, hi, info, info_min = _run_chunk(estimator, state, Hn, jnp.asarray(yc, dtype), info, valid, window, cert)
+        state, w, e, lo, hi, info, info_min = _run_chunk(estimator, state, Hn, jnp.asarray(yc, dtype), info, valid,
+                                                         window, cert)
         w, e = np.asarray(w[:size]), np.asarray(e[:size])
         in_chunk = marks[(marks >= first) & (marks < stop)] - first
         cum = np.cumsum(e.astype(float) ** 2) + e_sq_cum

@@ -22,10 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .batch import settle_index, trajectory
-from .certificate import convergence_certificate
 from .._excitation.pe import assumption1_ratio, pe_level
 from .._operators.pi import PIOperator
+from .batch import settle_index, trajectory
+from .certificate import convergence_certificate
 from .rls import ContinuousRLS
 
 THRESHOLDS = (0.0, 10.0 / 3.0, 20.0 / 3.0)

@@ -16,10 +16,10 @@ samples starting every `stride` samples:
 import jax.numpy as jnp
 from jax import lax
 
-from .map_settings import MapSettings, numerical_tolerance
 from .._operators.play import _bank
 from .condition import default_atol, holds, window_stats
 from .exact_condition import _event_level, _margin
+from .map_settings import MapSettings, numerical_tolerance
 
 
 def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:

@@ -2,9 +2,9 @@
 
 import numpy as np
 
+from .condition import SHARPER_STATEMENT
 from .families import FAMILIES
 from .map_settings import MapSettings, numerical_tolerance
-from .condition import SHARPER_STATEMENT
 
 EXACT_STATEMENT = (
     "in every window, the event matrix [h_a; rho_k] has rank n, where rho_k = dh_k / du_k is 1 "

@@ -7,8 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .families import DEFAULT_FAMILIES, family_indices
 from .._operators.play import METHODS
+from .families import DEFAULT_FAMILIES, family_indices
 
 
 class MapSettings(NamedTuple):

@@ -16,10 +16,10 @@ from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .. import _checks
+from .._progress import progress
 from .draw_metrics import draw_statistics
 from .families import draw_case
 from .map_settings import MapSettings
-from .._progress import progress
 
 _DRAWS_PER_STEP = 1
 

@@ -26,14 +26,13 @@ from jaxtyping import Array
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
-from .fit import PIFit
-from .pi_model import PIModel
 from .._models.composite import HysteresisModel
 from .._models.creep import lag_step
 from .._operators.inverse import inverse_parameters
-from .._operators.pi import inverse
-from .._operators.pi import PIOperator
+from .._operators.pi import PIOperator, inverse
 from .._operators.play import play_step
+from .fit import PIFit
+from .pi_model import PIModel
 
 
 def admissible_states(thresholds, states) -> Array:

@@ -18,8 +18,9 @@ user units exactly: r = u_half r', w = (y_half/u_half) w', states x = u_mid + u_
 Starts: the weights of each start are the linear least-squares solution on a grid of thresholds;
 several grids are solved at once by `vmap` (in batches on long records, to bound memory) and the
 best final fit is kept. Levenberg-Marquardt fits of records longer than `LONG_RECORD` samples
-never form the Jacobian: `normal_equations.py` accumulates JᵀJ and Jᵀr chunk by chunk. The fit is differentiable with respect to the data in forward and reverse
-mode: optimistix differentiates the solution implicitly at the optimum.
+never form the Jacobian: `normal_equations.py` accumulates JᵀJ and Jᵀr chunk by chunk.
+`fit_pi` itself runs on the host: it validates the data and picks the best start in Python, around
+one compiled solve.
 
 Identifiability (paper Assumption 1): a play whose threshold is at or above half the input's
 peak-to-peak range never traverses its loop, so its threshold is not determined by the data. Such
@@ -41,14 +42,14 @@ from jaxtyping import Array, Bool, Float
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike, States, Thresholds, Weights
+from .._models.composite import HysteresisModel
+from .._models.creep import Creep, check_time_constants, decays, lag_states, lag_step
+from .._operators.pi import PIOperator
+from .._operators.play import play_step
 from . import covariance as _cov
 from .fit_data import prepare as _prepare
 from .solvers import SOLVERS as SOLVERS
 from .solvers import check_solver, least_squares_solver, result_name
-from .._operators.pi import PIOperator
-from .._operators.play import play_step
-from .._models.composite import HysteresisModel
-from .._models.creep import Creep, check_time_constants, decays, lag_states, lag_step
 
 # A solver name from `SOLVERS` or an optimistix solver object (`solvers.py`).
 Solver = Literal["lm", "gn", "bfgs"] | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser

@@ -17,10 +17,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .._data.record import DataError
-from .._operators.pi import PIOperator
-from .._report import write_json
 from .._models.composite import HysteresisModel
 from .._models.creep import Creep
+from .._operators.pi import PIOperator
+from .._report import write_json
 from .fit import PIFit
 from .pi_model import PIModel
 

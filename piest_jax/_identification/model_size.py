@@ -33,8 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _checks
-from .fit import PIFit, fit_pi
 from .._progress import progress
+from .fit import PIFit, fit_pi
 
 CRITERIA = ("holdout", "bic")
 HOLDOUT = 0.3  # the default held-out fraction

@@ -35,10 +35,10 @@ import optimistix as optx
 from jax import lax
 from jax.flatten_util import ravel_pytree
 
-from . import fit as _fit
-from .._progress import bar as _bar
 from .._models.creep import decays, lag_step
 from .._operators.play import play_step
+from .._progress import bar as _bar
+from . import fit as _fit
 
 # Samples per chunk: it divides every padded length from 2^15 samples on (see
 # `fit_data.pad_count`), and J's rows for one chunk, p x CHUNK, stay small.

@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import _checks
 
+
 def _cumulative_weights(r, w):
     W = jnp.cumsum(w)
     if _checks.is_concrete(W) and _checks.is_concrete(r):
