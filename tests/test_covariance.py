@@ -233,3 +233,46 @@ def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, mon
     assert "does not determine" in err and "thresholds[2]" in err and "| weights[0] |" in err
     assert "undetermined (rank)" in (out / "fit.md").read_text()
     assert pj.load_model(out / "fit.json").thresholds.shape == (3,)
+
+
+@pytest.mark.parametrize("method", _cov.METHODS)
+@pytest.mark.parametrize("states, lags", [(False, 0), (True, 2)])
+def test_long_records_give_the_dense_estimate_in_bounded_memory(method, states, lags):
+    # The chunked moments (J's rows a chunk at a time, states and sensitivities carried) against
+    # J held whole, on a record of 1000 samples cut into chunks of 64 (not a multiple).
+    rng = np.random.default_rng(3)
+    u = signal(1000) + 0.7
+    dt = 0.01
+    s = Scales(*(np.float64(v) for v in (0.5, 1.6, -0.2, 2.5)))
+    layout = _cov.Layout(3, lags, states)
+    x0 = np.array([u[0], u[0] + 0.1, u[0] - 0.3])
+    z0 = np.full(lags, u[0] - 0.2)
+    parts = dict(thresholds=R, weights=W, offset=0.3)
+    if states:
+        parts["states"] = x0
+    if lags:
+        parts.update(taus=np.array([0.05, 0.4]), lag_weights=np.array([0.3, -0.2]), lag_states=z0 + 0.1)
+    theta = np.asarray(_cov.flatten(layout, **{k: np.asarray(v, float) for k, v in parts.items()}))
+    names, index = layout.names(3, lags)
+    un = (u - s.u_mid) / s.u_half
+    xn, zn = (x0 - s.u_mid) / s.u_half, (z0 - s.u_mid) / s.u_half
+    pred, J = _cov.jacobian(_fit.run, layout, theta, un, s, xn, zn, dt)
+    # Smooth (coloured) residuals, so that the Newey-West blocks are longer than one sample.
+    e = np.convolve(rng.standard_normal(1000 + 20), np.ones(20) / 20, "valid")[:1000] * 0.05
+    y = np.asarray(pred) + e
+    mask = np.ones(1000)
+    want = _cov.estimate(np.asarray(J)[:, index], e, method=method)
+    window = _cov.bandwidth(e) if method == "newey-west" else 1
+    assert method == "gauss-newton" or window > 2
+    JtJ, blocks, ete = _cov.moments(_fit.run, layout, theta, un, y, mask, s, xn, zn, dt, window, 64)
+    np.testing.assert_allclose(JtJ, np.asarray(J).T @ np.asarray(J), rtol=1e-10, atol=1e-10)
+    got = _cov.estimate_moments(np.asarray(JtJ)[np.ix_(index, index)], np.asarray(blocks)[np.ix_(index, index)],
+                                float(ete), 1000, method=method, window=window)
+    # The Gram route loses accuracy like cond(J)^2 eps where the SVD of J loses cond(J) eps.
+    Js = np.asarray(J)[:, index] / np.linalg.norm(np.asarray(J)[:, index], axis=0)
+    rtol = 10 * np.linalg.cond(Js) ** 2 * np.finfo(float).eps
+    assert rtol < 1e-5
+    scale = np.sqrt(np.outer(np.diag(want[0]), np.diag(want[0])))
+    np.testing.assert_array_less(np.abs(got[0] - want[0]), rtol * scale + 1e-300)
+    np.testing.assert_allclose(got[1], want[1], rtol=rtol)
+    assert not got[2].any() and not want[2].any()

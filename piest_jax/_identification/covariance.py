@@ -32,10 +32,15 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 from .fit_data import Scales
 
 METHODS = ("newey-west", "gauss-newton")
+# Records longer than this (fitted samples) accumulate what the covariance needs chunk by chunk
+# (`moments`) instead of holding J (T, p): the same estimate in bounded memory.
+LONG_RECORD = 2**16
+CHUNK = 4096
 RELATIVE_LIMIT = 0.5
 NULL_SHARE = 1e-4
 
@@ -93,6 +98,24 @@ def flatten(layout: Layout, thresholds, weights, offset, states=None, taus=None,
 
 
 @eqx.filter_jit
+def _natural(layout: Layout, theta, s: Scales, x0, z0, dt):
+    """`fit.run`'s arguments after the input, in normalised units, from the parameters `theta`."""
+    p = layout.split(theta)
+    w = p["weights"] * s.u_half / s.y_half
+    r = jnp.concatenate([jnp.zeros(1, theta.dtype), p["thresholds"]]) / s.u_half
+    x = (p["initial_states"] - s.u_mid) / s.u_half if layout.states else x0
+    total = jnp.sum(p["weights"])
+    lags = ()
+    if layout.k:
+        c = p["creep.weights"] * s.u_half / s.y_half
+        z = (p["creep.initial_states"] - s.u_mid) / s.u_half if layout.states else z0
+        total = total + jnp.sum(p["creep.weights"])
+        lags = (jnp.log(p["creep.time_constants"] / dt), c, z)
+    # offset = y_mid + y_half c' - u_mid Σ (weights), the inverse of the fit's map to units
+    c0 = (p["offset"][0] - s.y_mid + s.u_mid * total) / s.y_half
+    return (r, w, c0, x, *lags)
+
+
 def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
     """The model's output (T,) in the data's units and its Jacobian (T, p) at `theta`.
 
@@ -101,22 +124,72 @@ def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
     """
 
     def predict(theta):
-        p = layout.split(theta)
-        w = p["weights"] * s.u_half / s.y_half
-        r = jnp.concatenate([jnp.zeros(1, theta.dtype), p["thresholds"]]) / s.u_half
-        x = (p["initial_states"] - s.u_mid) / s.u_half if layout.states else x0
-        total = jnp.sum(p["weights"])
-        lags = ()
-        if layout.k:
-            c = p["creep.weights"] * s.u_half / s.y_half
-            z = (p["creep.initial_states"] - s.u_mid) / s.u_half if layout.states else z0
-            total = total + jnp.sum(p["creep.weights"])
-            lags = (jnp.log(p["creep.time_constants"] / dt), c, z)
-        # offset = y_mid + y_half c' - u_mid Σ (weights), the inverse of the fit's map to units
-        c0 = (p["offset"][0] - s.y_mid + s.u_mid * total) / s.y_half
-        return s.y_mid + s.y_half * run(u, r, w, c0, x, *lags)
+        return s.y_mid + s.y_half * run(u, *_natural(layout, theta, s, x0, z0, dt))
 
     return predict(theta), jax.jacfwd(predict)(theta)
+
+
+def _chunked(a, fill, chunk):
+    pad = -a.shape[0] % chunk
+    if pad:
+        a = jnp.concatenate([a, jnp.full(pad, fill, a.dtype)])
+    return a.reshape(-1, chunk)
+
+
+@eqx.filter_jit
+def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, window: int, chunk: int):
+    """What the covariance needs from J, accumulated chunk by chunk in bounded memory.
+
+    A `lax.scan` over chunks of the record carries the plays' (and lags') states and their
+    sensitivities to `theta` (forward mode, one tangent per parameter), so each chunk's rows of
+    J are exact while only `chunk` of them exist at a time.
+
+    **Arguments:** as [`jacobian`][], plus `y` (T,) in the data's units, `mask` (T,) the samples'
+    weights (0 leaves a sample out), `window` the Newey-West block length and `chunk` the chunk
+    length.
+
+    **Returns:** `(JtJ (p, p), blocks (p, p), eTe)`: JᵀJ and eᵀe of the weighted rows, and
+    Σ_t W_t W_tᵀ over the overlapping block sums W_t = Σ of g_i = J_i e_i over the `window`
+    samples ending at t (every t >= window - 1).
+    """
+    p = theta.shape[0]
+    T = u.shape[0]
+    data = (_chunked(u, u[-1], chunk), _chunked(y, 0.0, chunk), _chunked(mask, 0.0, chunk),
+            _chunked(jnp.arange(T), T, chunk))
+
+    def start(th):
+        nat = _natural(layout, th, s, x0, z0, dt)
+        return nat[3], (nat[6] if layout.k else None)
+
+    def chunk_model(th, states, uu):
+        r, w, c0, _, *lags = _natural(layout, th, s, x0, z0, dt)
+        x, z = states
+        args = (lags[0], lags[1], z) if layout.k else ()
+        pred, after = run(uu, r, w, c0, x, *args, final=True)
+        return s.y_mid + s.y_half * pred, after
+
+    s0 = start(theta)
+    ds0 = jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0), jax.jacfwd(start)(theta))
+    eye = jnp.eye(p, dtype=theta.dtype)
+
+    def body(carry, ch):
+        states, dstates, tail, JtJ, blocks, ete = carry
+        uu, yy, mm, ii = ch
+
+        def tangent(t, d):
+            return jax.jvp(lambda th, sv: chunk_model(th, sv, uu), (theta, states), (t, d))
+
+        (pred, after), (J, dafter) = jax.vmap(tangent, out_axes=(None, 0))(eye, dstates)
+        J = J * mm[None, :]
+        e = (yy - pred) * mm
+        cum = jnp.concatenate([tail, tail[-1] + jnp.cumsum((J * e[None, :]).T, axis=0)])
+        W = (cum[window:] - cum[:chunk]) * ((ii >= window - 1) & (ii < T))[:, None]
+        return (after, dafter, cum[chunk:], JtJ + J @ J.T, blocks + W.T @ W, ete + e @ e), None
+
+    zero = jnp.zeros((p, p), theta.dtype)
+    init = (s0, ds0, jnp.zeros((window, p), theta.dtype), zero, zero, jnp.zeros((), theta.dtype))
+    (_, _, _, JtJ, blocks, ete), _ = lax.scan(body, init, data)
+    return JtJ, blocks, ete
 
 
 def bandwidth(e) -> int:
@@ -146,11 +219,53 @@ def estimate(J, e, *, method: str = "newey-west", eps=None):
     J = np.asarray(J, np.float64)
     e = np.asarray(e, np.float64)
     N, p = J.shape
-    eps = np.finfo(np.float64).eps if eps is None else float(eps)
     norms = np.linalg.norm(J, axis=0)
     d = np.where(norms > 0, norms, 1.0)
-    U, S, Vt = np.linalg.svd(J / d, full_matrices=False)
-    tol = (S[0] if S.size and S[0] > 0 else 1.0) * max(N, p) * eps
+    _, S, Vt = np.linalg.svd(J / d, full_matrices=False)
+    b = bandwidth(e) if method == "newey-west" and N > p else None
+    blocks = None
+    if b is not None:
+        cs = np.concatenate([np.zeros((1, p)), np.cumsum(J * e[:, None], axis=0)])
+        W = cs[b:] - cs[:-b]
+        blocks = W.T @ W
+    return _sandwich(S, Vt, norms, N, p, float(e @ e), method, b, blocks, eps, rank_from_gram=False)
+
+
+def estimate_moments(JtJ, blocks, ete, N: int, *, method: str, window, eps=None):
+    """`estimate` from JᵀJ, the block sums' Σ W Wᵀ and eᵀe ([`moments`][]), for long records.
+
+    The singular values of the column-scaled J come from the eigenvalues of its Gram matrix,
+    which resolve them only down to about sqrt(eps) of the largest: the rank test uses that floor
+    when it is above `estimate`'s (so a long record's rank is judged as a shorter one's would be).
+
+    **Arguments:** `JtJ`, `blocks` (p, p), `ete`; `N` the fitted samples; `method`; `window` the
+    block length `blocks` was summed over; `eps` as in `estimate`.
+
+    **Returns:** as `estimate`.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown covariance method {method!r}; choose one of {METHODS}")
+    G = np.asarray(JtJ, np.float64)
+    p = G.shape[0]
+    norms = np.sqrt(np.maximum(np.diag(G), 0.0))
+    d = np.where(norms > 0, norms, 1.0)
+    lam, V = np.linalg.eigh(G / np.outer(d, d))
+    order = np.argsort(lam)[::-1]
+    S = np.sqrt(np.maximum(lam[order], 0.0))
+    Vt = V[:, order].T
+    b = int(window) if method == "newey-west" else None
+    return _sandwich(S, Vt, norms, N, p, float(ete), method, b,
+                     None if b is None else np.asarray(blocks, np.float64), eps, rank_from_gram=True)
+
+
+def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, eps, *, rank_from_gram):
+    """The covariance from the scaled J's singular values `S` and right vectors `Vt`."""
+    eps = np.finfo(np.float64).eps if eps is None else float(eps)
+    d = np.where(norms > 0, norms, 1.0)
+    rel = max(N, p) * eps
+    if rank_from_gram:
+        rel = max(rel, np.sqrt(eps))
+    tol = (S[0] if S.size and S[0] > 0 else 1.0) * rel
     rank = int(np.sum(S > tol))
     V = Vt[:rank].T
     bread = (V / S[:rank] ** 2) @ V.T / np.outer(d, d)  # (JᵀJ)⁺ on the identifiable subspace
@@ -162,16 +277,12 @@ def estimate(J, e, *, method: str = "newey-west", eps=None):
     if dof < 1:
         info["sigma"] = float("nan")
         return np.zeros((p, p)), np.full(p, np.inf), np.ones(p, bool), info
-    sigma2 = float(e @ e) / dof
+    sigma2 = ete / dof
     info["sigma"] = float(np.sqrt(sigma2))
     if method == "gauss-newton":
         cov = sigma2 * bread
     else:
-        b = bandwidth(e)
-        g = J * e[:, None]
-        cs = np.concatenate([np.zeros((1, p)), np.cumsum(g, axis=0)])
-        blocks = cs[b:] - cs[:-b]
-        meat = blocks.T @ blocks / b * N / (N - b + 1)
+        meat = blocks / b * N / (N - b + 1)
         cov = bread @ meat @ bread * N / dof
         info["bandwidth"] = b
     cov = 0.5 * (cov + cov.T)
@@ -220,20 +331,45 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, fi
             parts.append(um + uh * p["lag_states"])
     parts[2] = np.atleast_1d(ym + yh * p["offset"] - um * total)
     theta = np.concatenate(parts).astype(np.asarray(un).dtype)
-    pred, J = jacobian(run, layout, theta, un, s, x0, z0, np.asarray(dt, np.asarray(un).dtype))
+    dt = np.asarray(dt, np.asarray(un).dtype)
     used = np.asarray(mask) > 0
-    m = np.asarray(mask)[used]
-    y = np.asarray(yn)[used] * yh + ym
     names, index = layout.names(n_plays, n_lags)
-    Ju = np.asarray(J)[used][:, index] * m[:, None]
-    e = (y - np.asarray(pred)[used]) * m
-    cov, se, deficient, _ = estimate(Ju, e, method=method, eps=np.finfo(un.dtype).eps)
+    eps = np.finfo(un.dtype).eps
+    if int(used.sum()) > LONG_RECORD:
+        cov, se, deficient = _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
+                                                 index, eps, CHUNK)
+    else:
+        pred, J = jacobian(run, layout, theta, un, s, x0, z0, dt)
+        m = np.asarray(mask)[used]
+        y = np.asarray(yn)[used] * yh + ym
+        Ju = np.asarray(J)[used][:, index] * m[:, None]
+        e = (y - np.asarray(pred)[used]) * m
+        cov, se, deficient, _ = estimate(Ju, e, method=method, eps=eps)
     values = theta[index]
     scale = scales(names, values, uh, yh)
     undetermined = deficient | ~(se < RELATIVE_LIMIT * scale)
     return dict(parameter_names=names, parameter_values=jnp.asarray(values), covariance=jnp.asarray(cov),
                 std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
                 covariance_method=method)
+
+
+def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt, index, eps, chunk):
+    """`estimate`'s covariance from [`moments`][], on a record too long to hold J."""
+    theta = jnp.asarray(theta)
+    m = jnp.asarray(mask, theta.dtype)
+    y = jnp.asarray(yn) * s.y_half + s.y_mid
+    used = np.asarray(mask) > 0
+    window = 1
+    if method == "newey-west":
+        # The block length comes from the residuals' lag-1 correlation: one pass without J.
+        pred = s.y_mid + s.y_half * run(jnp.asarray(un), *_natural(layout, theta, s, x0, z0, dt))
+        e = (np.asarray(y) - np.asarray(pred))[used] * np.asarray(mask)[used]
+        window = bandwidth(e)
+    JtJ, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
+    JtJ, blocks = np.asarray(JtJ)[np.ix_(index, index)], np.asarray(blocks)[np.ix_(index, index)]
+    cov, se, deficient, _ = estimate_moments(JtJ, blocks, float(ete), int(used.sum()), method=method,
+                                             window=window, eps=eps)
+    return cov, se, deficient
 
 
 def play_flags(names, undetermined, n_plays):

@@ -200,18 +200,19 @@ def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None
     return run(u, r, w, params["offset"], x0, params["lag_log_tau"], c, params.get("lag_states", z0))
 
 
-def run(u, r, w, offset, x0, log_tau=None, c=None, z0=None):
+def run(u, r, w, offset, x0, log_tau=None, c=None, z0=None, *, final=False):
     """The model's output in normalised units from its natural parameters: thresholds `r`,
     weights `w`, `offset`, play states `x0`, and optionally the lags' log time constants (in
-    samples), weights `c` and states `z0`. The fit and its covariance both run the model here."""
+    samples), weights `c` and states `z0`. The fit and its covariance both run the model here.
+    With `final`, also the states after the last sample, `(x, z)`, to run on from there."""
     if log_tau is None:
 
         def step(x, ut):
             x = play_step(x, ut, r)
             return x, jnp.dot(w, x)
 
-        _, y = lax.scan(step, x0, u)
-        return y + offset
+        x, y = lax.scan(step, x0, u)
+        return (y + offset, (x, None)) if final else y + offset
     a = decays(log_tau, 1.0)
 
     # Plays and lags advance in one scan: on a CPU the per-sample overhead of a scan, not the
@@ -221,8 +222,8 @@ def run(u, r, w, offset, x0, log_tau=None, c=None, z0=None):
         x, z = play_step(x, ut, r), lag_step(z, ut, a)
         return (x, z), jnp.dot(w, x) + jnp.dot(c, z)
 
-    _, y = lax.scan(step_both, (x0, z0), u)
-    return y + offset
+    states, y = lax.scan(step_both, (x0, z0), u)
+    return (y + offset, states) if final else y + offset
 
 
 def _residuals(params, args):
