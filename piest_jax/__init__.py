@@ -96,6 +96,9 @@ _EXPORTS = {
     # model components
     "Creep": ("._models.creep", "Creep"),
     "HysteresisModel": ("._models.composite", "HysteresisModel"),
+    "Preisach": ("._models.preisach", "Preisach"),
+    "PreisachFit": ("._identification.fit_preisach", "PreisachFit"),
+    "fit_preisach": ("._identification.fit_preisach", "fit_preisach"),
     "save_model": ("._identification.model_file", "save_model"),
     "load_model": ("._identification.model_file", "load_model"),
     # diagnosis
@@ -218,6 +221,9 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.model_structure import select_model as select_model
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
+    from ._models.preisach import Preisach as Preisach
+    from ._identification.fit_preisach import PreisachFit as PreisachFit
+    from ._identification.fit_preisach import fit_preisach as fit_preisach
     from ._identification.model_size import select_plays as select_plays
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
