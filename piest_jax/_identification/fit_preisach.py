@@ -234,9 +234,10 @@ def fit_preisach(
             raise ValueError(f"`mask` must be (T,) = ({T},) finite non-negative weights")
     K, M = int(n_widths), int(n_centres)
     used = int(np.count_nonzero(w))
-    if used < K * M + 1:
-        raise ValueError(f"a {K} × {M} grid has {K * M + 1} coefficients but only {used} samples are "
-                         "fitted: use a coarser grid or a longer record")
+    n_coef = int(triangle(K, M).sum()) + 1
+    if used < n_coef:
+        raise ValueError(f"a {K} × {M} grid has {n_coef} coefficients (its triangle and the offset) "
+                         f"but only {used} samples are fitted: use a coarser grid or a longer record")
     if smoothness is None:
         cands = tuple(float(c) for c in candidates)
         if not cands or not all(np.isfinite(c) and c >= 0 for c in cands):
