@@ -237,6 +237,46 @@ def test_fit_is_in_the_data_units_and_honours_the_mask(rng):
                                10.0 * np.asarray(truth(v)) - 1.0, atol=1e-6)
 
 
+@given(seed=st.integers(0, 2**31 - 1), relaxed=st.booleans())
+def test_inverse_of_a_monotone_model_reproduces_the_output(seed, relaxed):
+    rng = np.random.default_rng(seed)
+    K, M = 4, 6
+    r, c = grid(K, M)
+    model = pj.Preisach(r, c, rng.uniform(0.0, 1.0, (K, M)) * (rng.uniform(size=(K, M)) > 0.3),
+                        offset=0.3, initial_states=None if relaxed else rng.uniform(-0.5, 0.5, K))
+    u = np.clip(np.cumsum(rng.normal(size=80)) * 0.2, -1.0, 1.0)
+    y = np.asarray(model(u))
+    u_hat = np.asarray(model.inverse(y))
+    np.testing.assert_allclose(np.asarray(model(u_hat)), y, atol=1e-10)
+
+
+def test_inverse_saturates_and_works_under_jit_and_after_a_monotone_fit(rng):
+    K, M = 4, 6
+    r, c = grid(K, M)
+    model = pj.Preisach(r, c, np.ones((K, M)), offset=0.0, initial_states=0.0)
+    lo, hi = (float(v) for v in model.input_range())
+    assert (lo, hi) == pytest.approx((-1.75, 1.75))
+    # The output spans ±24; beyond it the input goes to the end of the range it saturates at.
+    u = np.asarray(jax.jit(lambda m, y: m.inverse(y))(model, jnp.array([0.0, 30.0, -30.0, 5.0])))
+    assert (u[1], u[2]) == pytest.approx((hi, lo))
+    assert float(model(u)[1]) == pytest.approx(24.0)
+    assert float(model(u)[2]) == pytest.approx(-24.0)
+    np.testing.assert_allclose(float(model(u)[3]), 5.0, atol=1e-10)
+    truth = pj.Preisach(r, c, smooth_density(K, M), 0.1)
+    v = reversal_input(rng, 80, 10)
+    fit = pj.fit_preisach(v, np.asarray(truth(v)), n_widths=K, n_centres=M, monotone=True,
+                          smoothness=0.0)
+    target = np.asarray(truth(v))[:200]
+    np.testing.assert_allclose(np.asarray(fit.model(fit.model.inverse(target))), target,
+                               atol=1e-8)
+
+
+def test_inverse_refuses_a_negative_density():
+    model = pj.Preisach([0.0, 0.5], [-0.5, 0.5], [[1.0, -0.1], [0.5, 0.5]])
+    with pytest.raises(ValueError, match="cannot be inverted: its density has negative"):
+        model.inverse(jnp.zeros(3))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [

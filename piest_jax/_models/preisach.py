@@ -22,8 +22,12 @@ gives minor loops whose shape depends on where they sit (non-congruent), which n
 **Properties that hold for every density.** |y - offset| ≤ Σ|μ| (each s in [-1, 1]); wiping-out
 (an excursion to a new maximum and then a new minimum erases the memory of smaller earlier ones,
 because each play's state does); rate independence. With μ ≥ 0 the output is non-decreasing in the
-current input for a fixed past (each s is non-decreasing in H_r, each H_r in u), which is what an
-inverse by bisection needs; that inverse is not part of this module yet.
+current input for a fixed past (each s is non-decreasing in H_r, each H_r in u), which is what the
+inverse needs: `Preisach.inverse` finds, sample by sample in a `lax.scan` carrying the play
+states, the set [u_L, u_U] of inputs that give the target output (two bisections) and takes the
+point of it nearest the previous input (the least motion; the set is one point wherever the output
+is strictly increasing). A target beyond what the model can reach gives the nearest end of the
+input range it saturates at. A negative density raises `ValueError` ("cannot be inverted").
 
 The play bank is `_operators.play.play`, so the compiled kernel path is the same as the PI's.
 """
@@ -31,11 +35,12 @@ The play bank is `_operators.play.play`, so the compiled kernel path is the same
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 from jaxtyping import Array, Float
 
 from .. import _checks
 from .._custom_types import Signal, SignalLike
-from .._operators.play import Method, play
+from .._operators.play import Method, play, play_step
 
 Widths = Float[Array, " widths"]
 Centres = Float[Array, " centres"]
@@ -204,3 +209,97 @@ class Preisach(eqx.Module):
         **Returns:** (K,).
         """
         return self.plays(u)[-1]
+
+    def _step_output(self, x: Array, u: Array) -> tuple[Array, Array]:
+        """The play states after input `u` from states `x` (K,), and the model output there."""
+        x = play_step(x, u, self.half_widths)
+        s = jnp.clip((x[:, None] - self.centres) / self.blur, -1.0, 1.0)
+        return x, self.offset + jnp.sum(self.density * s)
+
+    def input_range(self) -> tuple[Array, Array]:
+        """The inputs beyond which every relay is saturated: (c_1 - δ_1 - r_K, c_M + δ_M + r_K).
+
+        **Returns:** `(lo, hi)`, scalars.
+        """
+        r = self.half_widths[-1]
+        return self.centres[0] - self.blur[0] - r, self.centres[-1] + self.blur[-1] + r
+
+    def inverse_step(self, x: Array, y: Array, u_prev: Array, n_iter: int = 60):
+        """One sample of the inverse: the input that takes the output to `y` from play states `x`.
+
+        Needs a non-negative density (then the output is non-decreasing in the input for fixed
+        states). Two bisections on [lo, hi] = `input_range()` find the smallest input u_L whose
+        output reaches `y` and the largest u_U whose output does not pass it; the input returned is
+        `u_prev` clipped to [u_L, u_U].
+
+        **Arguments:** `x` (K,), the play states before this sample; `y`, the target output;
+        `u_prev`, the previous input; `n_iter`, bisection steps (60 reach float64 resolution).
+
+        **Returns:** `(x_new, u)`: the play states after the input, and the input.
+        """
+        lo, hi = self.input_range()
+
+        def bisect(reach):
+            def body(_, bounds):
+                a, b = bounds
+                mid = 0.5 * (a + b)
+                ok = reach(self._step_output(x, mid)[1])
+                return jnp.where(ok, a, mid), jnp.where(ok, mid, b)
+
+            return lax.fori_loop(0, n_iter, body, (lo, hi))
+
+        # Smallest u with f(u) >= y (b), largest u with f(u) <= y (a).
+        _, u_lo = bisect(lambda f: f >= y)
+        u_hi, _ = bisect(lambda f: f > y)
+        u = jnp.clip(u_prev, jnp.minimum(u_lo, u_hi), jnp.maximum(u_lo, u_hi))
+        return self._step_output(x, u)[0], u
+
+    def inverse(self, y: SignalLike, *, n_iter: int = 60) -> Signal:
+        """The input u (T,) whose output follows `y` (T,): the compensator of a monotone model.
+
+        The plays start from `initial_states`; when those are None (relaxed at the first input),
+        the first input solves the relaxed model offset + Σ μ_km clip((u - c_m)/δ_m, -1, 1) = y_0
+        and the plays start at it (the first step from given states starts at their mean). Then each sample is [`inverse_step`][piest_jax.Preisach.inverse_step]
+        in a `lax.scan`. Where `y` is beyond what the model reaches, the input saturates at an end
+        of `input_range()`.
+
+        **Arguments:** `y` (T,), the desired output; `n_iter`, bisection steps per sample.
+
+        **Returns:** the input u (T,), with `self(u)` equal to `y` wherever `y` is reachable.
+        """
+        y = _checks.finite(_checks.signal(y, "y"), "y").astype(self.density.dtype)
+        mu = self.density
+        if _checks.is_concrete(mu):
+            if np.any(np.asarray(mu) < 0):
+                raise ValueError("this Preisach model cannot be inverted: its density has negative "
+                                 "entries (fit with monotone=True for an invertible model)")
+        else:
+            mu = eqx.error_if(mu, jnp.any(mu < 0), "a negative density cannot be inverted")
+        model = eqx.tree_at(lambda m: m.density, self, mu)
+        if model.initial_states is None:
+            lo, hi = model.input_range()
+            # Relaxed plays sit at the input itself: bisection with x = u for every play.
+            def f0(u):
+                s = jnp.clip((u - model.centres) / model.blur, -1.0, 1.0)
+                return model.offset + jnp.sum(mu * s)
+
+            def body(_, bounds):
+                a, b = bounds
+                mid = 0.5 * (a + b)
+                ok = f0(mid) >= y[0]
+                return jnp.where(ok, a, mid), jnp.where(ok, mid, b)
+
+            _, u0 = lax.fori_loop(0, n_iter, body, (lo, hi))
+            # The first input is u0 itself: the forward model starts its plays at its first input.
+            x0, first, rest = jnp.full_like(model.half_widths, u0), u0[None], y[1:]
+        else:
+            x0 = model.initial_states
+            u0, first, rest = jnp.mean(x0), y[:0], y
+
+        def step(carry, yt):
+            x, u_prev = carry
+            x, u = model.inverse_step(x, yt, u_prev, n_iter)
+            return (x, u), u
+
+        _, us = lax.scan(step, (x0, u0), rest)
+        return jnp.concatenate([first, us])
