@@ -22,9 +22,10 @@ on block b's output, whose squared error is yᵀy - 2θᵀh + θᵀGθ from that
 choice needs no second pass over the data. The input of a held-out block still drives the plays
 (only its output is held out), as it would when predicting a later part of a record.
 
-**Monotone option.** `monotone=True` constrains μ ≥ 0 (the offset stays free) and solves the
-penalised problem by non-negative least squares on its Cholesky factor. A density ≥ 0 makes the
-output non-decreasing in the current input for a fixed past, hence invertible by bisection.
+**Monotone option.** `monotone=True` constrains μ ≥ 0 (the offset stays free, eliminated first)
+and solves the penalised problem by non-negative least squares on a square root of its matrix. A
+density ≥ 0 makes the output non-decreasing in the current input for a fixed past, hence
+invertible (`Preisach.inverse`).
 
 The solves run in float64 NumPy on the host; only the accumulation runs in JAX.
 """
@@ -38,7 +39,6 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 from jax import lax
-from jaxtyping import Array, Float
 
 from .. import _checks
 from .._custom_types import SignalLike
@@ -168,9 +168,13 @@ def _solve(G, h, pen, monotone):
     c = max(A[-1, -1], 1e-300)
     As = a - np.outer(b, b) / c
     hs = h[:-1] - b * h[-1] / c
-    L = np.linalg.cholesky(As + 1e-12 * np.trace(As) / len(As) * np.eye(len(As)))
-    mu = scipy.optimize.nnls(L.T, scipy.linalg.solve_triangular(L, hs, lower=True),
-                             maxiter=50 * len(As))[0]
+    # A square root of the (positive semi-definite, maybe numerically singular) matrix: As = FᵀF,
+    # and Fᵀg = hs on its range, so |Fμ - g|² = μᵀAsμ - 2hsᵀμ + const.
+    lam, V = np.linalg.eigh(0.5 * (As + As.T))
+    pos = lam > 1e-13 * max(lam.max(), 1e-300)
+    F = np.sqrt(lam[pos])[:, None] * V[:, pos].T
+    g = (V[:, pos].T @ hs) / np.sqrt(lam[pos])
+    mu = scipy.optimize.nnls(F, g, maxiter=50 * len(As))[0]
     return np.append(mu, (h[-1] - b @ mu) / c)
 
 

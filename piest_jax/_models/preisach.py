@@ -259,9 +259,9 @@ class Preisach(eqx.Module):
 
         The plays start from `initial_states`; when those are None (relaxed at the first input),
         the first input solves the relaxed model offset + Σ μ_km clip((u - c_m)/δ_m, -1, 1) = y_0
-        and the plays start at it (the first step from given states starts at their mean). Then each sample is [`inverse_step`][piest_jax.Preisach.inverse_step]
-        in a `lax.scan`. Where `y` is beyond what the model reaches, the input saturates at an end
-        of `input_range()`.
+        and the plays start at it (from given states, the first step starts at their mean). Then
+        each sample is [`inverse_step`][piest_jax.Preisach.inverse_step] in a `lax.scan`. Where
+        `y` is beyond what the model reaches, the input saturates at an end of `input_range()`.
 
         **Arguments:** `y` (T,), the desired output; `n_iter`, bisection steps per sample.
 
