@@ -160,6 +160,20 @@ def test_chunked_normal_equations_equal_the_dense_ones(rng):
     assert float(n.sum()) == w.sum() and np.all(np.asarray(n) > 0)
 
 
+def test_fit_does_not_depend_on_the_chunk_and_the_kernel_path_equals_the_scan(rng):
+    K, M = 4, 6
+    r, c = grid(K, M)
+    truth = pj.Preisach(r, c, smooth_density(K, M), 0.3)
+    u = reversal_input(rng, 60, 11)
+    y = np.asarray(truth(u)) + 0.01 * rng.normal(size=u.shape)
+    a = pj.fit_preisach(u, y, n_widths=K, n_centres=M, smoothness=1e-3, chunk=17, method="scan")
+    b = pj.fit_preisach(u, y, n_widths=K, n_centres=M, smoothness=1e-3, chunk=4096)
+    np.testing.assert_allclose(np.asarray(a.model.density), np.asarray(b.model.density), atol=1e-9)
+    assert a.rmse == pytest.approx(b.rmse, rel=1e-9)
+    auto = pj.Preisach(r, c, smooth_density(K, M), 0.3, method="auto")
+    np.testing.assert_array_equal(np.asarray(auto(u)), np.asarray(truth(u)))
+
+
 def test_penalty_is_zero_on_planes_and_the_triangle_is_the_switching_cells():
     K, M = 4, 5
     r, c = grid(K, M)

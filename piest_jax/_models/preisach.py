@@ -105,7 +105,8 @@ class Preisach(eqx.Module):
       for [`play`][piest_jax.play]).
 
     Shapes, ordering and non-finite values raise `ValueError` (through `eqx.error_if` for traced
-    values). `__call__` takes one signal (T,); batch with `jax.vmap`.
+    values). `__call__` takes one signal (T,); batch with `jax.vmap`. With a non-negative density
+    the model is invertible: [`inverse`][piest_jax.Preisach.inverse].
     """
 
     half_widths: Widths
