@@ -96,6 +96,9 @@ _EXPORTS = {
     # model components
     "Creep": ("._models.creep", "Creep"),
     "HysteresisModel": ("._models.composite", "HysteresisModel"),
+    "Preisach": ("._models.preisach", "Preisach"),
+    "PreisachFit": ("._identification.fit_preisach", "PreisachFit"),
+    "fit_preisach": ("._identification.fit_preisach", "fit_preisach"),
     "save_model": ("._identification.model_file", "save_model"),
     "load_model": ("._identification.model_file", "load_model"),
     # diagnosis
@@ -210,6 +213,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.fit import initial_time_constants as initial_time_constants
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
+    from ._identification.fit_preisach import PreisachFit as PreisachFit
+    from ._identification.fit_preisach import fit_preisach as fit_preisach
     from ._identification.model_file import load_model as load_model
     from ._identification.model_file import save_model as save_model
     from ._identification.model_size import ModelSize as ModelSize
@@ -219,6 +224,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.pi_model import PIModel as PIModel
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
+    from ._models.preisach import Preisach as Preisach
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
     from ._operators.pi import PIOperator as PIOperator
