@@ -37,10 +37,9 @@ def reference_model(u, theta, names, dt, x0, z0):
     return y
 
 
-@pytest.mark.parametrize("states, lags", [(False, 0), (True, 0), (True, 2)])
-def test_jacobian_matches_finite_differences(states, lags):
-    u = signal(200) + 0.7
-    dt = 0.01
+def model_setup(T, states, lags):
+    """A record, scales, a layout and its parameters in the data's units, for the Jacobian tests."""
+    u = signal(T) + 0.7
     s = Scales(*(np.float64(v) for v in (0.5, 1.6, -0.2, 2.5)))
     layout = _cov.Layout(3, lags, states)
     x0 = np.array([u[0], u[0] + 0.1, u[0] - 0.3])
@@ -51,6 +50,13 @@ def test_jacobian_matches_finite_differences(states, lags):
     if lags:
         parts.update(taus=np.array([0.05, 0.4]), lag_weights=np.array([0.3, -0.2]), lag_states=z0 + 0.1)
     theta = np.asarray(_cov.flatten(layout, **{k: np.asarray(v, float) for k, v in parts.items()}))
+    return u, s, layout, x0, z0, theta
+
+
+@pytest.mark.parametrize("states, lags", [(False, 0), (True, 0), (True, 2)])
+def test_jacobian_matches_finite_differences(states, lags):
+    dt = 0.01
+    u, s, layout, x0, z0, theta = model_setup(200, states, lags)
     names, index = layout.names(3, lags)
     assert index.tolist() == [i for i in range(theta.size) if not (states and i == 6)]
     un = (u - s.u_mid) / s.u_half
@@ -241,18 +247,8 @@ def test_long_records_give_the_dense_estimate_in_bounded_memory(method, states, 
     # The chunked moments (J's rows a chunk at a time, states and sensitivities carried) against
     # J held whole, on a record of 1000 samples cut into chunks of 64 (not a multiple).
     rng = np.random.default_rng(3)
-    u = signal(1000) + 0.7
     dt = 0.01
-    s = Scales(*(np.float64(v) for v in (0.5, 1.6, -0.2, 2.5)))
-    layout = _cov.Layout(3, lags, states)
-    x0 = np.array([u[0], u[0] + 0.1, u[0] - 0.3])
-    z0 = np.full(lags, u[0] - 0.2)
-    parts = dict(thresholds=R, weights=W, offset=0.3)
-    if states:
-        parts["states"] = x0
-    if lags:
-        parts.update(taus=np.array([0.05, 0.4]), lag_weights=np.array([0.3, -0.2]), lag_states=z0 + 0.1)
-    theta = np.asarray(_cov.flatten(layout, **{k: np.asarray(v, float) for k, v in parts.items()}))
+    u, s, layout, x0, z0, theta = model_setup(1000, states, lags)
     names, index = layout.names(3, lags)
     un = (u - s.u_mid) / s.u_half
     xn, zn = (x0 - s.u_mid) / s.u_half, (z0 - s.u_mid) / s.u_half

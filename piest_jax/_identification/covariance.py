@@ -22,7 +22,9 @@ max(N, p)·eps·s_max (NumPy's `matrix_rank` rule) are dropped; a parameter with
 more than `NULL_SHARE` in the dropped directions is undetermined, its standard error infinite, and
 the covariance is the pseudo-inverse's, i.e. that of the determined combinations. A parameter is
 also undetermined when its standard error exceeds `RELATIVE_LIMIT` (0.5: its 95 % interval
-reaches past its scale) of its scale: |value| for weights and time constants; for a threshold the
+reaches past its scale) of its scale: |value| for time constants; the model's overall slope
+y_half/u_half for play and creep weights (a weight estimated near zero with a small error is
+determined to be small); for a threshold the
 room it has, the distance to its lower neighbour or to the top of the input's half range,
 whichever is smaller (a play whose threshold may lie beyond the input's reach is not known to
 move); half the output range for the offset, half the input range for initial states.
@@ -305,6 +307,10 @@ def scales(names, values, u_half, y_half):
             out[i] = y_half
         elif "initial_states" in n:
             out[i] = u_half
+        elif "weights" in n:
+            # A weight's scale is the model's overall slope, not its own size: a weight estimated
+            # near zero with a small error is determined (to be small), not undetermined.
+            out[i] = y_half / u_half
         else:
             out[i] = abs(v)
     return out
