@@ -62,8 +62,9 @@ terminal unless --quiet). The validation record never takes part in choosing or 
 and of its RMSE; they still drive the plays. Weights are kept positive (so the
 model can be inverted by `piest compensate`) unless --signed-weights.
 
-On the Aye & Ang piezo pair (identify on one run, predict the other), the default picks 8 plays
-and 3 lags: validation_rmse 0.54 and validation_rmse_ic 0.31 (PI alone: 1.34 and 0.63).
+A candidate with a parameter the record does not determine (see fit.md) is never chosen: on the
+Aye & Ang piezo pair (identify on one run, predict the other) the default keeps 8 plays and no
+creep (validation_rmse 1.34, validation_rmse_ic 0.63), the creep candidates being undetermined.
 
 example:  piest fit data.csv --validate val.csv --out fitted"""
 
