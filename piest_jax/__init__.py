@@ -90,7 +90,8 @@ _EXPORTS = {
     "Comparison": ("._identification.compare", "Comparison"),
     "compare": ("._identification.compare", "compare"),
     "fit_percent": ("._identification.compare", "fit_percent"),
-    "initial_time_constants": ("._identification.fit", "initial_time_constants"),
+    "initial_time_constants": ("._identification.time_constants", "initial_time_constants"),
+    "shortest_time_constant": ("._identification.time_constants", "shortest_time_constant"),
     "ModelChoice": ("._identification.model_structure", "ModelChoice"),
     "select_model": ("._identification.model_structure", "select_model"),
     # model components
@@ -210,7 +211,6 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.compensate import linear_feedforward as linear_feedforward
     from ._identification.fit import PIFit as PIFit
     from ._identification.fit import fit_pi as fit_pi
-    from ._identification.fit import initial_time_constants as initial_time_constants
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
     from ._identification.fit_preisach import PreisachFit as PreisachFit
@@ -222,6 +222,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.model_structure import ModelChoice as ModelChoice
     from ._identification.model_structure import select_model as select_model
     from ._identification.pi_model import PIModel as PIModel
+    from ._identification.time_constants import initial_time_constants as initial_time_constants
+    from ._identification.time_constants import shortest_time_constant as shortest_time_constant
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
     from ._models.preisach import Preisach as Preisach

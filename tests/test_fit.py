@@ -102,7 +102,7 @@ def test_objective_gradient_matches_finite_differences():
         "initial_states": jnp.asarray([0.05, 0.0, -0.05]),
     }
     args = (jnp.asarray(un), jnp.asarray(yn), jnp.zeros(3), jnp.ones(200), True, None, None, None,
-            None)
+            None, None)
 
     @jax.jit
     def loss(p):

@@ -252,11 +252,12 @@ def test_residual_gradient_with_lags_matches_finite_differences():
         "increments": jnp.asarray([-1.0, -0.7]),
         "weights": jnp.asarray([0.3, -0.2, 0.5]),
         "offset": jnp.asarray(0.1),
-        "lag_log_tau": jnp.asarray([1.5, 3.0]),
+        "lag_theta": jnp.asarray([1.5, 0.3]),
         "lag_weights": jnp.asarray([0.4, -0.3]),
         "lag_states": jnp.asarray([0.05, -0.1]),
     }
-    args = (un, yn, jnp.zeros(3), jnp.ones(200), True, None, None, jnp.zeros(2), None)
+    args = (un, yn, jnp.zeros(3), jnp.ones(200), True, None, None, jnp.zeros(2), None,
+            jnp.log(jnp.asarray([2.0, 2.0 * np.sqrt(10.0)])))
 
     @jax.jit
     def loss(p):

@@ -32,15 +32,17 @@ def problem(T, n_lags=0, fit_states=False, pad=False):
     active = jnp.array([1.0, 1.0, 1.0, 0.0]) if pad else None
     z0 = jnp.full(n_lags, un[0]) if n_lags else None
     log_tau0 = jnp.log(jnp.array([30.0, 300.0][:n_lags])) if n_lags else None
+    base = jnp.log(jnp.array([10.0, 10.0 * 10**0.5][:n_lags])) if n_lags else None
     r0 = jnp.array([0.0, 0.15, 0.4, 0.7])
-    p = _fit._initial_params(r0, un, yn, x0, mask, True, fit_states, None, active, z0, log_tau0)
+    p = _fit._initial_params(r0, un, yn, x0, mask, True, fit_states, None, active, z0, log_tau0,
+                             None, base)
     # Move off the least-squares weights so that the residuals are not orthogonal to anything.
     p = jax.tree.map(lambda a: a + 0.05 * jnp.cos(jnp.arange(jnp.size(a)).reshape(a.shape)), p)
     if active is not None:
         p["increments"] = p["increments"] * active[1:]
         p["weights"] = p["weights"] * active
-    args = (un, yn, x0, mask, True, None, active, z0, None)
-    st = _ne.Settings(True, 1e-6, 1e-9, None, active, None, x0, z0)
+    args = (un, yn, x0, mask, True, None, active, z0, None, base)
+    st = _ne.Settings(True, 1e-6, 1e-9, None, active, None, x0, z0, base)
     return p, args, st
 
 
@@ -106,6 +108,10 @@ def chunked_fit(monkeypatch):
 )
 def test_chunked_fit_equals_in_memory_fit(chunked_fit, options):
     u, y = record(1000)
+    if "n_lags" in options:
+        # A creep the record determines: lags fitted to a record without one wander over flat
+        # directions, where the two solvers' step counts (not their answers) may differ.
+        y = y + np.asarray(pj.Creep([0.05, 0.5], [0.3, -0.2], 1e-3)(u))
     a = pj.fit_pi(u, y, 4, key=jax.random.key(0), **options)
     b = chunked_fit(u, y, 4, key=jax.random.key(0), **options)
     assert a.result_name == b.result_name == "successful"

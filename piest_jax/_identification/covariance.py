@@ -37,6 +37,7 @@ import numpy as np
 from jax import lax
 
 from .fit_data import Scales
+from .time_constants import lag_log_tau
 
 METHODS = ("newey-west", "gauss-newton")
 # Records longer than this (fitted samples) accumulate what the covariance needs chunk by chunk
@@ -316,8 +317,8 @@ def scales(names, values, u_half, y_half):
     return out
 
 
-def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, fit_states, n_plays,
-               n_lags) -> dict:
+def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, lag_base, fit_states,
+               n_plays, n_lags) -> dict:
     """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
     padded; `r`, `w` its thresholds and weights): the Jacobian over every padded parameter (one
     compilation per padded shape), then the columns of the parameters in use."""
@@ -331,7 +332,7 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, fi
     total = np.sum(parts[1])
     if layout.k:
         c = p["lag_weights"] if lag_active is None else p["lag_weights"] * np.asarray(lag_active)
-        parts += [np.exp(p["lag_log_tau"]) * dt, c * yh / uh]
+        parts += [np.exp(np.asarray(lag_log_tau(p["lag_theta"], lag_base))) * dt, c * yh / uh]
         total = total + np.sum(parts[-1])
         if fit_states:
             parts.append(um + uh * p["lag_states"])

@@ -47,9 +47,11 @@ from .._models.creep import Creep, check_time_constants, decays, lag_states, lag
 from .._operators.pi import PIOperator
 from .._operators.play import play_step
 from . import covariance as _cov
+from . import time_constants
 from .fit_data import prepare as _prepare
 from .solvers import SOLVERS as SOLVERS
 from .solvers import check_solver, least_squares_solver, result_name
+from .time_constants import initial_time_constants, lag_log_tau, lag_theta, shortest_time_constant
 
 # A solver name from `SOLVERS` or an optimistix solver object (`solvers.py`).
 Solver = Literal["lm", "gn", "bfgs"] | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser
@@ -189,15 +191,16 @@ def _lag_weights(params, lag_active=None):
 
 
 def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None,
-             lag_active=None):
+             lag_active=None, lag_base=None):
     """Normalised model output; x0 (and the lags' z0) are used unless the parameters carry fitted
     initial states. Time is in samples here (dt = 1)."""
     r, w = _constrained(params, positive_weights, r_bound, active)
     x0 = params.get("initial_states", x0)
-    if "lag_log_tau" not in params:
+    if "lag_theta" not in params:
         return run(u, r, w, params["offset"], x0)
     c = _lag_weights(params, lag_active)
-    return run(u, r, w, params["offset"], x0, params["lag_log_tau"], c, params.get("lag_states", z0))
+    log_tau = lag_log_tau(params["lag_theta"], lag_base)
+    return run(u, r, w, params["offset"], x0, log_tau, c, params.get("lag_states", z0))
 
 
 def run(u, r, w, offset, x0, log_tau=None, c=None, z0=None, *, final=False):
@@ -228,9 +231,9 @@ def run(u, r, w, offset, x0, log_tau=None, c=None, z0=None, *, final=False):
 
 def _residuals(params, args):
     """Masked residuals scaled so that their sum of squares is the mean squared error."""
-    u, y, x0, mask, positive_weights, r_bound, active, z0, lag_active = args
+    u, y, x0, mask, positive_weights, r_bound, active, z0, lag_active, lag_base = args
     count = jnp.maximum(jnp.sum(mask), 1.0)
-    pred = _predict(params, u, x0, positive_weights, r_bound, active, z0, lag_active)
+    pred = _predict(params, u, x0, positive_weights, r_bound, active, z0, lag_active, lag_base)
     res = mask * (pred - y) / jnp.sqrt(count)
     extra = []
     # Inactive (padding) parameters do not reach the data residuals; one residual each, zero
@@ -243,7 +246,7 @@ def _residuals(params, args):
             extra.append(off * (params["initial_states"] - x0))
     if lag_active is not None:
         off = 1.0 - lag_active
-        extra += [off * params["lag_log_tau"], off * params["lag_weights"]]
+        extra += [off * params["lag_theta"], off * params["lag_weights"]]
         if "lag_states" in params:
             extra.append(off * (params["lag_states"] - z0))
     return jnp.concatenate([res, *extra]) if extra else res
@@ -264,7 +267,7 @@ def _grid(n, n_starts, dtype, key):
 
 
 def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_bound=None,
-                    active=None, z0=None, log_tau0=None, lag_active=None, sol=None):
+                    active=None, z0=None, log_tau0=None, lag_active=None, lag_base=None, sol=None):
     """The starting parameters; `sol`, when given, is the weights' least-squares solution
     (play weights, lag weights, offset) already computed (the long-record path's, by chunks)."""
     n = r0.shape[0]
@@ -306,10 +309,10 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
         params["initial_states"] = x0
     if log_tau0 is not None:
         cw = sol[n:-1]
-        log_tau = log_tau0
+        theta = lag_theta(log_tau0, lag_base)
         if lag_active is not None:
-            cw, log_tau = cw * lag_active, log_tau * lag_active
-        params["lag_log_tau"] = log_tau
+            cw, theta = cw * lag_active, theta * lag_active
+        params["lag_theta"] = theta
         params["lag_weights"] = cw
         if fit_initial_states:
             params["lag_states"] = z0
@@ -319,11 +322,11 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
 @eqx.filter_jit
 def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
                   fit_initial_states, max_steps, rtol, atol, batch=None, active=None, z0=None,
-                  log_tau0s=None, lag_active=None):
-    def one(r0, log_tau0, un, yn, x0, mask, r_bound, active, z0, lag_active):
-        args = (un, yn, x0, mask, positive_weights, r_bound, active, z0, lag_active)
+                  log_tau0s=None, lag_active=None, lag_base=None):
+    def one(r0, log_tau0, un, yn, x0, mask, r_bound, active, z0, lag_active, lag_base):
+        args = (un, yn, x0, mask, positive_weights, r_bound, active, z0, lag_active, lag_base)
         p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound,
-                             active, z0, log_tau0, lag_active)
+                             active, z0, log_tau0, lag_active, lag_base)
         sol = optx.least_squares(_residuals, least_squares_solver(solver, rtol, atol), p0, args=args,
                                  max_steps=max_steps, throw=False)
         res = _residuals(sol.value, args)
@@ -335,7 +338,7 @@ def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
     # solver's implicit derivative under `vmap` fails when its arguments are shared (unbatched)
     # across the starts, while batched copies transpose cleanly. The copies cost starts x T.
     n = r0s.shape[0]
-    data = (un, yn, x0, mask, r_bound, active, z0, lag_active)
+    data = (un, yn, x0, mask, r_bound, active, z0, lag_active, lag_base)
     data = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), data)
 
     def fn(xs):
@@ -367,22 +370,6 @@ def default_starts_at_once(T: int) -> int:
     return max(1, STARTS_BUDGET // max(int(T), 1))
 
 
-def initial_time_constants(n_lags: int, dt: float, duration: float):
-    """Starting time constants for `n_lags` creep lags, log-spaced across the record.
-
-    The range runs from 10 samples (faster lags act as an instantaneous gain, which the plays
-    already hold) to the record's duration (slower ones look like an offset); the lags sit at the
-    centres of `n_lags` equal bins of log τ over it.
-
-    **Arguments:** `n_lags`; `dt`, the sampling interval; `duration`, the fitted stretch's length.
-
-    **Returns:** (n_lags,) time constants in the units of `dt`.
-    """
-    lo = 10.0 * dt
-    hi = max(duration, 10.0 * lo)
-    return lo * (hi / lo) ** ((np.arange(n_lags) + 0.5) / max(n_lags, 1))
-
-
 def fit_pi(
     u: SignalLike,
     y: SignalLike,
@@ -406,6 +393,7 @@ def fit_pi(
     dt: float = 1.0,
     time_constants0=None,
     pad_lags: int | None = None,
+    min_time_constant: float | None = None,
     covariance: str | None = "newey-west",
 ) -> PIFit:
     """Fit thresholds, weights and an output offset (optionally initial states, optionally a creep
@@ -450,9 +438,14 @@ def fit_pi(
       u_0 unless `fit_initial_states`.
     - `dt`: the sampling interval, the time unit of the creep's time constants.
     - `time_constants0`: (K,) starting time constants (default [`initial_time_constants`][]
-      over the fitted stretch); the starts after the first scale them by random factors in
-      [1/2, 2] when `key` is given.
+      over the fitted stretch, each start at another place in the lags' bins); the starts after
+      the first scale given ones by random factors in [1/2, 2] when `key` is given.
     - `pad_lags`: as `pad_plays`, for the lags (at least `n_lags`).
+    - `min_time_constant`: the fastest creep time constant allowed (units of `dt`; default
+      [`shortest_time_constant`][] of the fitted input: a lag much faster than the input's
+      reversals trades its weight against the first play's and cannot be determined). The fitted
+      time constants are kept ordered, at least this and each at least √10 times the one before
+      (`docs/fitting.md`); starts outside those bounds begin on them.
     - `covariance`: how the parameters' covariance is estimated: `"newey-west"` (the default: a
       sandwich estimate that stays honest when the residuals are coloured, as a measured record's
       model error is), `"gauss-newton"` (σ²(JᵀJ)⁻¹, for white residuals) or None (none; the
@@ -476,6 +469,8 @@ def fit_pi(
     max_steps = int(max_steps)  # optimistix takes Python integers only
     per_lag = 3 if fit_initial_states else 2
     _check_lags(n_lags, pad_lags, dt)
+    if min_time_constant is not None and not (np.isfinite(min_time_constant) and min_time_constant > 0):
+        raise ValueError(f"`min_time_constant` must be positive and finite, got {min_time_constant!r}")
     un, yn, mask, s, x0, r_start = _prepare(
         u, y, n_plays, mask, thresholds0, initial_states, 3 if fit_initial_states else 2,
         extra=per_lag * n_lags,
@@ -500,27 +495,34 @@ def fit_pi(
         r0s = jnp.concatenate([r0s, jnp.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
         x0 = jnp.concatenate([x0, jnp.repeat(x0[-1:], extra)])
         active = (jnp.arange(int(pad_plays)) < n_plays).astype(un.dtype)
-    z0 = log_tau0s = lag_active = None
+    z0 = log_tau0s = lag_active = lag_base = None
     k_all = n_lags if pad_lags is None else int(pad_lags)
     if k_all > 0:
         used = np.flatnonzero(np.asarray(mask[:T]) > 0)
+        shortest = (shortest_time_constant(np.asarray(un[:T]), 1.0, mask[:T])
+                    if min_time_constant is None else float(min_time_constant) / dt)
+        lag_base = jnp.asarray(time_constants.lag_base(k_all, shortest), un.dtype)
+        n_s = r0s.shape[0]
         if time_constants0 is None or n_lags == 0:
-            tau0 = initial_time_constants(n_lags, 1.0, float(used[-1] - used[0] + 1))
+            tau0 = initial_time_constants(n_lags, 1.0, float(used[-1] - used[0] + 1), shortest, n_s)
         else:
             tau0 = np.asarray(check_time_constants(time_constants0, "time_constants0"), float)
             if tau0.shape != (n_lags,):
                 raise ValueError(f"`time_constants0` has {tau0.size} entries for {n_lags} lags")
-            tau0 = tau0 / dt
-        tau0 = np.concatenate([tau0, np.full(k_all - n_lags, 1.0)])
-        log_tau0s = jnp.broadcast_to(jnp.log(jnp.asarray(tau0, un.dtype)), (r0s.shape[0], k_all))
-        if key is not None and r0s.shape[0] > 1:
-            jitter = jax.random.uniform(jax.random.fold_in(key, 1), log_tau0s.shape, un.dtype,
-                                        -np.log(2.0), np.log(2.0))
-            log_tau0s = log_tau0s.at[1:].add(jitter[1:])
+            tau0 = np.broadcast_to(np.sort(tau0) / dt, (n_s, n_lags))
+            if key is not None and n_s > 1:
+                # Starts after the first scale them by random factors in [1/2, 2].
+                jitter = np.asarray(jax.random.uniform(jax.random.fold_in(key, 1), tau0.shape,
+                                                       minval=-np.log(2.0), maxval=np.log(2.0)))
+                tau0 = tau0 * np.exp(np.concatenate([np.zeros((1, n_lags)), jitter[1:]]))
+                tau0 = np.sort(tau0, axis=1)
+        # Padding lags (inactive) start above the active ones; their parameters are zeroed.
+        pad = tau0[:, -1:] if n_lags else np.ones((n_s, 1))
+        tau0 = np.concatenate([tau0, pad * time_constants.LAG_RATIO ** np.arange(1, k_all - n_lags + 1)], axis=1)
+        log_tau0s = jnp.asarray(np.log(tau0), un.dtype)
         z0 = jnp.full(k_all, (jnp.asarray(u, un.dtype)[0] - s.u_mid) / s.u_half, un.dtype)
         if pad_lags is not None:
             lag_active = (jnp.arange(k_all) < n_lags).astype(un.dtype)
-            log_tau0s = log_tau0s * lag_active
     r_bound = None
     if max_threshold is not None:
         if not float(max_threshold) > 0:
@@ -530,7 +532,7 @@ def fit_pi(
             raise ValueError("`thresholds0` must lie below `max_threshold`")
     common = dict(positive_weights=positive_weights, fit_initial_states=fit_initial_states,
                   max_steps=max_steps, rtol=rtol, atol=atol, active=active, z0=z0,
-                  log_tau0s=log_tau0s, lag_active=lag_active)
+                  log_tau0s=log_tau0s, lag_active=lag_active, lag_base=lag_base)
     if isinstance(solver, str) and solver == "lm" and un.shape[0] > LONG_RECORD:
         from .normal_equations import solve_starts
 
@@ -558,7 +560,7 @@ def fit_pi(
     if n_lags > 0:
         cw = (_lag_weights(p)[:n_lags]) * s.y_half / s.u_half
         offset = offset - s.u_mid * jnp.sum(cw)
-        tau = jnp.exp(p["lag_log_tau"][:n_lags]) * dt
+        tau = jnp.exp(lag_log_tau(p["lag_theta"], lag_base)[:n_lags]) * dt
         zs = None
         if fit_initial_states:
             zs = s.u_mid + s.u_half * p["lag_states"][:n_lags]
@@ -566,7 +568,7 @@ def fit_pi(
     fields = {}
     if covariance is not None:
         fields = _cov.fit_fields(covariance, run, p, r_all, w_all, un, yn, mask, s, x0, z0, dt,
-                                 lag_active, fit_initial_states, n_plays, n_lags)
+                                 lag_active, lag_base, fit_initial_states, n_plays, n_lags)
     unexcited_plays = thresholds >= s.u_half
     flagged = unexcited_plays
     if fields:
@@ -612,7 +614,7 @@ def uniform_pi(
     un, yn, mask, s, x0, _ = _prepare(u, y, n_plays, mask, None, initial_states)
     r0 = jnp.arange(n_plays, dtype=un.dtype) / n_plays
     p = _initial_params(r0, un, yn, x0, mask, False, False)
-    loss = jnp.sum(_residuals(p, (un, yn, x0, mask, False, None, None, None, None)) ** 2)
+    loss = jnp.sum(_residuals(p, (un, yn, x0, mask, False, None, None, None, None, None)) ** 2)
     weights = p["weights"] * s.y_half / s.u_half
     return PIFit(
         thresholds=r0 * s.u_half,

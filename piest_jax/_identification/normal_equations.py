@@ -39,6 +39,7 @@ from .._models.creep import decays, lag_step
 from .._operators.play import play_step
 from .._progress import bar as _bar
 from . import fit as _fit
+from .time_constants import lag_log_tau
 
 # Samples per chunk: it divides every padded length from 2^15 samples on (see
 # `fit_data.pad_count`), and J's rows for one chunk, p x CHUNK, stay small.
@@ -60,6 +61,7 @@ class Settings(eqx.Module):
     lag_active: jax.Array | None
     x0: jax.Array
     z0: jax.Array | None
+    lag_base: jax.Array | None = None
 
 
 def chunked(a, fill, chunk=CHUNK):
@@ -73,7 +75,7 @@ def chunked(a, fill, chunk=CHUNK):
 def _start_states(params, st: Settings):
     """The plays' (and lags') states before the first sample: fitted, or the fixed ones."""
     x = params.get("initial_states", st.x0)
-    z = params.get("lag_states", st.z0) if "lag_log_tau" in params else None
+    z = params.get("lag_states", st.z0) if "lag_theta" in params else None
     return x, z
 
 
@@ -90,7 +92,7 @@ def _chunk_residuals(params, states, data, scale, st: Settings):
 
         x, pred = lax.scan(step, x, u, unroll=UNROLL)
     else:
-        a = decays(params["lag_log_tau"], 1.0)
+        a = decays(lag_log_tau(params["lag_theta"], st.lag_base), 1.0)
         c = _fit._lag_weights(params, st.lag_active)
 
         def step(carry, ut):
@@ -106,7 +108,7 @@ def _extra_residuals(params, st: Settings):
     """The residuals that hold padding (inactive) parameters in place: those of an empty record."""
     empty = jnp.zeros((0,), st.x0.dtype)
     return _fit._residuals(params, (empty, empty, st.x0, empty, st.positive_weights, st.r_bound,
-                               st.active, st.z0, st.lag_active))
+                               st.active, st.z0, st.lag_active, st.lag_base))
 
 
 def normal_equations(theta, unravel, data, st: Settings, theta_old=None, first=None):
@@ -295,7 +297,7 @@ def least_squares(params0, data, st: Settings, max_steps: int, report: bool = Fa
 
 def solve_starts(r0s, un, yn, x0, mask, r_bound, *, positive_weights, fit_initial_states,
                  max_steps, rtol, atol, active=None, z0=None, log_tau0s=None, lag_active=None,
-                 chunk=None):
+                 lag_base=None, chunk=None):
     """Every start (r0s (starts, n), log_tau0s (starts, K) or None) solved by the chunked
     Levenberg-Marquardt; the same arguments and returns as `fit._solve_starts`, and `chunk`, the
     samples per chunk (default `CHUNK`).
@@ -313,7 +315,7 @@ def solve_starts(r0s, un, yn, x0, mask, r_bound, *, positive_weights, fit_initia
         scout = -(-int(used[SCOUT - 1] + 1) // chunk)
         if 2 * scout * chunk > un.shape[0]:
             scout = None
-    st = Settings(positive_weights, rtol, atol, r_bound, active, lag_active, x0, z0)
+    st = Settings(positive_weights, rtol, atol, r_bound, active, lag_active, x0, z0, lag_base)
     # The bar counts Levenberg-Marquardt steps on all samples (each one pass over the record),
     # against the budget: its estimate of the time left is an upper bound, as most fits stop
     # well before `max_steps`.
@@ -335,7 +337,7 @@ def _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_step
         sol = start_regression(r0, log_tau0, data, st)
         p0 = _fit._initial_params(r0, un, yn, st.x0, mask, st.positive_weights,
                                   fit_initial_states, st.r_bound, st.active, st.z0, log_tau0,
-                                  st.lag_active, sol=sol)
+                                  st.lag_active, st.lag_base, sol=sol)
         params, loss, result, steps = least_squares(p0, data, st, max_steps, report)
         return params, jnp.where(jnp.isfinite(loss), loss, jnp.inf), result, steps
 
