@@ -222,3 +222,19 @@ def test_the_commands_draw_without_pyplot():
     offending = [str(p.relative_to(root)) for p in root.rglob("*.py")
                  if "matplotlib.use(" in p.read_text() or "import matplotlib.pyplot" in p.read_text()]
     assert offending == ["_cli/output.py"]  # save_figure closes a pyplot figure it is given
+
+
+def test_the_command_line_in_process_leaves_the_backend_alone(tmp_path):
+    code = """
+import sys
+import matplotlib
+matplotlib.use("pdf")
+import matplotlib.pyplot as plt
+from piest_jax._cli import main
+code = main(["simulate", "--duration", "0.1", "--quiet", "--out", sys.argv[1]])
+print(code, matplotlib.get_backend(), plt.get_fignums())
+"""
+    proc = _python(code, str(tmp_path / "o"))
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split("\n")[-2] == "0 pdf []"
+    assert (tmp_path / "o" / "loop.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
