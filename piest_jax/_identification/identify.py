@@ -78,7 +78,7 @@ class Identification:
     @property
     def mask(self) -> np.ndarray | None:
         """(T,) 1 on the fitted samples and 0 on the others, or None when all were fitted."""
-        return _mask(self.record, self.fit_from)
+        return fit_mask(self.record, self.fit_from)
 
     def to_json(self) -> dict:
         """The report `piest fit` writes as fit.json.
@@ -229,12 +229,7 @@ def plan(record: Record, *, model="auto", plays="auto", lags=None, time_constant
     if np.ptp(record.u) == 0:
         raise ValueError(f"{record.source}: the input u is constant ({record.u[0]:g}): it excites "
                          "no play, so there is nothing to fit")
-    if fit_from is not None and not np.isfinite(fit_from):
-        raise ValueError(f"`fit_from` must be a finite time, got {fit_from}")
-    mask = _mask(record, fit_from)
-    if mask is not None and not mask.any():
-        raise ValueError(f"{record.source}: no sample at or after `fit_from` {fit_from:g} "
-                         f"(the record ends at t = {record.t[-1]:g})")
+    mask = fit_mask(record, fit_from)
     n_used = record.n_samples if mask is None else int(mask.sum())
     candidates = tuple(candidates or CANDIDATES)
     lag_counts = tuple(lags or LAGS)
@@ -360,8 +355,18 @@ def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Va
     return Validation(val, raw, ic, starts_at_rest(val.u), convention)
 
 
-def _mask(record: Record, fit_from) -> np.ndarray | None:
-    return None if fit_from is None else (record.t >= fit_from).astype(float)
+def fit_mask(record: Record, fit_from) -> np.ndarray | None:
+    """(T,) 1 on the samples at time >= `fit_from`, 0 before; None when `fit_from` is None.
+    Raises `ValueError` for a non-finite `fit_from` or one after the record's last sample."""
+    if fit_from is None:
+        return None
+    if not np.isfinite(fit_from):
+        raise ValueError(f"`fit_from` must be a finite time, got {fit_from}")
+    mask = (record.t >= fit_from).astype(float)
+    if not mask.any():
+        raise ValueError(f"{record.source}: no sample at or after `fit_from` {fit_from:g} "
+                         f"(the record ends at t = {record.t[-1]:g})")
+    return mask
 
 
 def _check_time_constants(taus, record: Record) -> None:
