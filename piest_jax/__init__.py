@@ -26,6 +26,7 @@ _EXPORTS = {
     "play_step": ("._operators.play", "play_step"),
     "stop": ("._operators.play", "stop"),
     "kernel_available": ("._operators.kernel.binding", "available"),
+    "loop_figure": ("._operators.figure", "loop_figure"),
     # estimation
     "AbstractEstimator": ("._estimation.estimators", "AbstractEstimator"),
     "Estimation": ("._estimation.estimators", "Estimation"),
@@ -42,6 +43,7 @@ _EXPORTS = {
     "OnlineEstimate": ("._estimation.online", "OnlineEstimate"),
     "estimate_record": ("._estimation.online", "estimate_record"),
     "settled_start": ("._estimation.online", "settled_start"),
+    "online_estimate_figure": ("._estimation.online_figure", "online_estimate_figure"),
     # excitation, input signals and the Monte Carlo map
     "time_grid": ("._excitation.signals", "time_grid"),
     "sine": ("._excitation.signals", "sine"),
@@ -74,6 +76,7 @@ _EXPORTS = {
     "draw_keys": ("._excitation.montecarlo", "draw_keys"),
     "mesh_sharding": ("._excitation.montecarlo", "mesh_sharding"),
     "pe_map": ("._excitation.montecarlo", "pe_map"),
+    "pe_map_figure": ("._excitation.map_figure", "pe_map_figure"),
     # identification
     "PIFit": ("._identification.fit", "PIFit"),
     "fit_pi": ("._identification.fit", "fit_pi"),
@@ -94,6 +97,11 @@ _EXPORTS = {
     "shortest_time_constant": ("._identification.time_constants", "shortest_time_constant"),
     "ModelChoice": ("._identification.model_structure", "ModelChoice"),
     "select_model": ("._identification.model_structure", "select_model"),
+    "Identification": ("._identification.identify", "Identification"),
+    "Validation": ("._identification.identify", "Validation"),
+    "identify": ("._identification.identify", "identify"),
+    "fit_figure": ("._identification.figures", "fit_figure"),
+    "compensation_figure": ("._identification.figures", "compensation_figure"),
     # model components
     "Creep": ("._models.creep", "Creep"),
     "HysteresisModel": ("._models.composite", "HysteresisModel"),
@@ -104,6 +112,7 @@ _EXPORTS = {
     "load_model": ("._identification.model_file", "load_model"),
     # diagnosis
     "diagnose": ("._diagnosis.diagnose", "diagnose"),
+    "diagnosis_figure": ("._diagnosis.figure", "diagnosis_figure"),
     "EFFECTS": ("._diagnosis.effects", "EFFECTS"),
     "noise_std": ("._diagnosis.scaling", "noise_std"),
     "hidden_effect_record": ("._diagnosis.hidden", "generate"),
@@ -153,6 +162,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._data.record import load_record as load_record
     from ._diagnosis.diagnose import diagnose as diagnose
     from ._diagnosis.effects import EFFECTS as EFFECTS
+    from ._diagnosis.figure import diagnosis_figure as diagnosis_figure
     from ._diagnosis.hidden import generate as hidden_effect_record  # noqa: F401
     from ._diagnosis.scaling import noise_std as noise_std
     from ._estimation.batch import BatchStats as BatchStats
@@ -168,6 +178,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._estimation.online import OnlineEstimate as OnlineEstimate
     from ._estimation.online import estimate_record as estimate_record
     from ._estimation.online import settled_start as settled_start
+    from ._estimation.online_figure import online_estimate_figure as online_estimate_figure
     from ._estimation.rls import ContinuousRLS as ContinuousRLS
     from ._estimation.rls import ForgettingRLS as ForgettingRLS
     from ._excitation.condition import sharper_condition as sharper_condition
@@ -179,6 +190,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.exact_condition import pe_margin as pe_margin
     from ._excitation.families import FAMILIES as INPUT_FAMILIES  # noqa: F401
     from ._excitation.families import draw_case as draw_case
+    from ._excitation.map_figure import pe_map_figure as pe_map_figure
     from ._excitation.map_report import summarise as summarise
     from ._excitation.map_settings import MapSettings as MapSettings
     from ._excitation.map_settings import make_settings as make_settings
@@ -209,12 +221,17 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.compensate import evaluate_compensation as evaluate_compensation
     from ._identification.compensate import feedforward as feedforward
     from ._identification.compensate import linear_feedforward as linear_feedforward
+    from ._identification.figures import compensation_figure as compensation_figure
+    from ._identification.figures import fit_figure as fit_figure
     from ._identification.fit import PIFit as PIFit
     from ._identification.fit import fit_pi as fit_pi
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
     from ._identification.fit_preisach import PreisachFit as PreisachFit
     from ._identification.fit_preisach import fit_preisach as fit_preisach
+    from ._identification.identify import Identification as Identification
+    from ._identification.identify import Validation as Validation
+    from ._identification.identify import identify as identify
     from ._identification.model_file import load_model as load_model
     from ._identification.model_file import save_model as save_model
     from ._identification.model_size import ModelSize as ModelSize
@@ -227,6 +244,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
     from ._models.preisach import Preisach as Preisach
+    from ._operators.figure import loop_figure as loop_figure
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
     from ._operators.pi import PIOperator as PIOperator

@@ -216,8 +216,8 @@ def test_creep_parameters_have_standard_errors():
 def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, monkeypatch):
     import json
 
-    from piest_jax._cli import fit as fit_cmd
     from piest_jax._cli import main
+    from piest_jax._identification import identify as identify_module
 
     t = np.linspace(0.0, 2.0, 400)
     u = np.sin(2 * np.pi * 2 * t)
@@ -225,7 +225,7 @@ def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, mon
     np.savetxt(tmp_path / "d.csv", np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
     real = pj.fit_pi
     # The solver would move a play out of reach; starting it there and taking no step keeps it.
-    monkeypatch.setattr(fit_cmd, "fit_pi", lambda u, y, n, **kw: real(
+    monkeypatch.setattr(identify_module, "fit_pi", lambda u, y, n, **kw: real(
         u, y, n, thresholds0=[0.0, 0.4, 1.5], n_starts=1, max_steps=1, initial_states=0.0))
     out = tmp_path / "o"
     assert main(["fit", str(tmp_path / "d.csv"), "--model", "pi", "--plays", "3", "--out", str(out)]) == 0

@@ -366,7 +366,7 @@ def _reached(*args, **kwargs):
 # inputs are accepted (simulate is cheap and runs until it writes).
 _STUBS = {
     "simulate": [(simulate_cmd._io, "write_csv")],
-    "fit": [(fit_cmd, "fit_pi"), (fit_cmd, "select_plays"), (fit_cmd, "select_model")],
+    "fit": [(fit_cmd, "identify")],
     "diagnose": [(_diagnose, "diagnose")],
     "compensate": [(compensate_cmd, "feedforward")],
     "montecarlo": [(montecarlo_cmd, "pe_map")],

@@ -35,7 +35,7 @@ def _started(*args, **kwargs):
 
 # Where each command's computation starts.
 _STARTS = [
-    (fit_cmd, "fit_pi"), (fit_cmd, "select_plays"), (fit_cmd, "select_model"), (_diagnose, "diagnose"),
+    (fit_cmd, "identify"), (_diagnose, "diagnose"),
     (compensate_cmd, "feedforward"), (montecarlo_cmd, "pe_map"), (_online, "estimate_record"),
     (simulate_cmd.PIOperator, "regressor"),
 ]

@@ -21,7 +21,7 @@ import pytest
 _JOBS = {
     "simulate": ("piest_jax._cli.simulate", "_io.write_csv",
                  ["simulate", "--plays", "400", "--r-max", "5", "--duration", "100"]),
-    "fit": ("piest_jax._cli.fit", "select_model", ["fit", "{rec}", "--starts", "8"]),
+    "fit": ("piest_jax._identification.identify", "select_model", ["fit", "{rec}", "--starts", "8"]),
     "diagnose": ("piest_jax._diagnosis.diagnose", "diagnose", ["diagnose", "{rec}"]),
     "compensate": ("piest_jax._cli.compensate", "feedforward", ["compensate", "{model}", "{rec}"]),
     "montecarlo": ("piest_jax._cli.montecarlo", "pe_map",

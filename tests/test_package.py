@@ -162,3 +162,79 @@ def test_lazy_exports_and_the_type_checking_imports_agree():
     assert checked == {**pj._EXPORTS, **{m: (".", m) for m in pj._SUBMODULES}}
     for public, (module, attr) in pj._EXPORTS.items():
         assert getattr(importlib.import_module(module, "piest_jax"), attr) is getattr(pj, public)
+
+
+def _figure_calls():
+    """Every figure function of the public API, called on small inputs."""
+    t = np.linspace(0.0, 1.0, 60)
+    u = np.sin(2 * np.pi * 2 * t)
+    y = u + 0.1 * np.cos(2 * np.pi * 2 * t)
+    rec = pj.Record(t, u, y)
+    mask = (t >= 0.2).astype(float)
+    arrays = {"t": t, "u": u, "y": y, "base": 0.9 * y, "final": y,
+              "val_t": t, "val_u": u, "val_y": y, "val_base": 0.9 * y, "val_final": y}
+    diagnosis = {"_arrays": arrays, "effects": ["delay"], "baseline_rmse": 0.1, "final_rmse": 0.01,
+                 "validation": {"baseline_rmse": 0.2, "final_rmse": 0.02}}
+    k = np.arange(4.0)
+    online = pj.OnlineEstimate(
+        thresholds=k[:2], initial_states=k[:2], weights=k[:2], offset=np.float64(0.0), t=k,
+        weights_trajectory=np.ones((4, 2)), offset_trajectory=k, error_rms=np.exp(-k), final_rmse=0.1,
+        window_t=k[:2], pe_levels=np.array([1e-3, 1e-2]), exciting=np.array([True, True]),
+        bound_t=k[:2], gram_bound=np.array([1.0, 0.1]),
+    )
+    settings = pj.make_settings(n_samples=100, families=["sine", "triangle"], dtype="float64")
+    rng = np.random.default_rng(0)
+    draws = {"rho": rng.uniform(0.1, 3, 20), "c1_normalised": rng.uniform(1e-12, 1e-3, 20),
+             "family": np.repeat(list(settings.families), 10), "exact": rng.uniform(size=20) > 0.3,
+             "sharper": rng.uniform(size=20) > 0.5, "weight_error": rng.uniform(1e-9, 1, 20),
+             "margin": rng.uniform(1e-9, 1e-4, 20), "c1": rng.uniform(1e-9, 1e-3, 20)}
+    return {
+        "fit_figure": lambda: pj.fit_figure(rec, 0.9 * y, title="fit", mask=mask),
+        "compensation_figure": lambda: pj.compensation_figure(t, y, u),
+        "loop_figure": lambda: pj.loop_figure(t, u, y, np.column_stack([u, 0.5 * u]), [0.0, 0.5]),
+        "diagnosis_figure": lambda: pj.diagnosis_figure(diagnosis),
+        "online_estimate_figure": lambda: pj.online_estimate_figure(online, title="rls", t0=1.0),
+        "pe_map_figure": lambda: pj.pe_map_figure(draws, settings),
+        "paper.figure": lambda: pj.paper.figure(_fake_report()),
+    }
+
+
+def test_every_figure_function_leaves_the_backend_and_pyplot_alone(tmp_path):
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    backend = matplotlib.get_backend()
+    for name, draw in _figure_calls().items():
+        fig = draw()
+        assert isinstance(fig, matplotlib.figure.Figure) and len(fig.axes) >= 2, name
+        assert matplotlib.get_backend() == backend and plt.get_fignums() == [], name
+        pj.save_figure(fig, tmp_path / f"{name}.png", dpi=40)
+        assert (tmp_path / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    assert plt.get_fignums() == []
+
+
+def test_the_commands_draw_without_pyplot():
+    # The figures are library functions built on `Figure()`; no command imports pyplot or
+    # switches the backend.
+    from pathlib import Path
+
+    root = Path(pj.__file__).parent
+    offending = [str(p.relative_to(root)) for p in root.rglob("*.py")
+                 if "matplotlib.use(" in p.read_text() or "import matplotlib.pyplot" in p.read_text()]
+    assert offending == ["_cli/output.py"]  # save_figure closes a pyplot figure it is given
+
+
+def test_the_command_line_in_process_leaves_the_backend_alone(tmp_path):
+    code = """
+import sys
+import matplotlib
+matplotlib.use("pdf")
+import matplotlib.pyplot as plt
+from piest_jax._cli import main
+code = main(["simulate", "--duration", "0.1", "--quiet", "--out", sys.argv[1]])
+print(code, matplotlib.get_backend(), plt.get_fignums())
+"""
+    proc = _python(code, str(tmp_path / "o"))
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split("\n")[-2] == "0 pdf []"
+    assert (tmp_path / "o" / "loop.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -125,8 +125,8 @@ def main(argv=None) -> int:
     """Run the `piest` command line in this process (`piest_jax.run_cli`).
 
     **Arguments:** `argv`, the words after `piest`, e.g. `["fit", "data.csv", "--out", "fitted"]`
-    (default: `sys.argv[1:]`). Like `piest`, it switches JAX to float64 and matplotlib to its
-    file backend (Agg).
+    (default: `sys.argv[1:]`). Like `piest`, it switches JAX to float64; its figures are drawn
+    without pyplot, so matplotlib's backend and pyplot's figures stay as they were.
 
     **Returns:** the exit code: 0 success, 2 bad input (a one-line message on stderr), 1 an
     internal error, 130 interrupted, 143 terminated.
@@ -195,14 +195,12 @@ def _require_plotting() -> None:
     """Every command draws its figures with matplotlib, which the `cli` extra installs; say so
     before any computation rather than fail at the end."""
     try:
-        import matplotlib
+        import matplotlib  # noqa: F401
     except ImportError:
         raise CLIError(
             "matplotlib is needed to draw the figures; install the command line's extras with "
             "pip install 'piest_jax[cli]'"
         ) from None
-    # A file backend: the command writes PNGs and never opens a window.
-    matplotlib.use("Agg")
 
 
 def _silence_stdout() -> None:

@@ -7,6 +7,7 @@ import numpy as np
 from .._data.columns import base_name
 from .._data.record import load_columns
 from .._identification.compensate import admissible_states, feedforward
+from .._identification.figures import compensation_figure
 from .._models.composite import HysteresisModel
 from .._operators.pi import PIOperator
 from . import memory
@@ -128,7 +129,7 @@ def run(args) -> int:
         "max_model_error": float(np.max(np.abs(ym - yd))),
     } | _outside(args.model, u)
     written.append(_io.write_json(out / "compensate.json", summary))
-    written.append(_io.save_figure(_figure(t, yd, u), out / "compensate.png", dpi=110))
+    written.append(_io.save_figure(compensation_figure(t, yd, u), out / "compensate.png", dpi=110))
     for p in written:
         print(p)
     return 0
@@ -151,20 +152,3 @@ def _outside(path, u) -> dict:
               f"range the model was fitted on [{lo:.4g}, {hi:.4g}] (u from {u.min():.4g} to "
               f"{u.max():.4g}); the model is extrapolated there", file=sys.stderr)
     return {"fitted_input_range": [lo, hi], "fraction_outside_fitted_range": frac}
-
-
-def _figure(t, yd, u):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-    a1.plot(t, yd, "k", lw=0.8, label="desired output")
-    a1.plot(t, u, "C1", lw=0.8, label="feedforward input")
-    a1.set(xlabel="time", title="compensation")
-    a1.legend(fontsize=8)
-    a2.plot(yd, u, lw=0.8)
-    a2.set(xlabel="desired output", ylabel="feedforward input", title="inverse loop")
-    fig.tight_layout()
-    return fig

@@ -1,9 +1,8 @@
 """`piest diagnose`: find where a PI model and the data disagree, name the missing effects."""
 
-import numpy as np
-
 from .._data.record import load_record
 from .._diagnosis.effects import EFFECT, EFFECTS, RECORD_SPECIFIC
+from .._diagnosis.figure import diagnosis_figure
 from .._report import json_text
 from . import memory
 from . import output as _io
@@ -87,12 +86,13 @@ def run(args) -> int:
         check_record(val)
     rep = diagnose(rec, val, max_effects=args.max_effects, candidates=cands,
                    solver=None if args.solver == "none" else args.solver, quiet=args.quiet or args.json)
-    arrays = rep.pop("_arrays")
+    fig = diagnosis_figure(rep)
+    del rep["_arrays"]
     rep["data"] = str(args.data)
     if val is not None:
         rep["validation"]["data"] = str(args.validate)
     written = [_io.write_json(out / "report.json", rep)]
-    written.append(_io.save_figure(_figure(arrays, rep), out / "report.png", dpi=110))
+    written.append(_io.save_figure(fig, out / "report.png", dpi=110))
     written.append(_io.write_text(out / "report.md", _markdown(rep)))
     if args.json:
         # write_json has refused any non-finite value the command does not allow, so this text
@@ -168,43 +168,3 @@ def _markdown(rep):
     if not any(w["structured"] for w in rep["where"]):
         lines.append("- nowhere: the residual is at the noise floor")
     return "\n".join(lines) + "\n"
-
-
-def _figure(a, rep):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    has_val = "val_t" in a
-    fig, ax = plt.subplots(2, 3 if has_val else 2, figsize=(15 if has_val else 11, 7))
-    ax = np.atleast_2d(ax)
-    names = " + ".join(rep["effects"]) or "no effect"
-    ax[0, 0].plot(a["t"], a["y"] - a["base"], lw=0.6, label=f"plain PI (RMSE {rep['baseline_rmse']:.3g})")
-    ax[0, 0].plot(a["t"], a["y"] - a["final"], lw=0.6, label=f"+ {names} (RMSE {rep['final_rmse']:.3g})")
-    ax[0, 0].set(xlabel="time", ylabel="residual y - model", title="residual before and after")
-    ax[0, 0].legend(fontsize=8)
-    ax[0, 1].plot(a["u"], a["y"], lw=0.5, color="0.6", label="measured")
-    ax[0, 1].plot(a["u"], a["base"], lw=0.7, label="plain PI")
-    ax[0, 1].set(xlabel="u", ylabel="y", title="loop before")
-    ax[0, 1].legend(fontsize=8)
-    ax[1, 1].plot(a["u"], a["y"], lw=0.5, color="0.6", label="measured")
-    ax[1, 1].plot(a["u"], a["final"], lw=0.7, color="C1", label=f"+ {names}")
-    ax[1, 1].set(xlabel="u", ylabel="y", title="loop after")
-    ax[1, 1].legend(fontsize=8)
-    ax[1, 0].plot(a["u"], a["y"] - a["base"], ".", ms=1, label="plain PI")
-    ax[1, 0].plot(a["u"], a["y"] - a["final"], ".", ms=1, label=f"+ {names}")
-    ax[1, 0].set(xlabel="u", ylabel="residual", title="residual against the input")
-    ax[1, 0].legend(fontsize=8, markerscale=8)
-    if has_val:
-        v = rep["validation"]
-        ax[0, 2].plot(a["val_t"], a["val_y"] - a["val_base"], lw=0.6, label=f"plain PI ({v['baseline_rmse']:.3g})")
-        ax[0, 2].plot(a["val_t"], a["val_y"] - a["val_final"], lw=0.6, label=f"after ({v['final_rmse']:.3g})")
-        ax[0, 2].set(xlabel="time", ylabel="residual", title="validation record: residual")
-        ax[0, 2].legend(fontsize=8)
-        ax[1, 2].plot(a["val_u"], a["val_y"], lw=0.5, color="0.6", label="measured")
-        ax[1, 2].plot(a["val_u"], a["val_final"], lw=0.7, color="C1", label="after")
-        ax[1, 2].set(xlabel="u", ylabel="y", title="validation record: loop after")
-        ax[1, 2].legend(fontsize=8)
-    fig.tight_layout()
-    return fig

@@ -4,6 +4,7 @@
 import numpy as np
 
 from .._data.record import load_record
+from .._estimation.online_figure import online_estimate_figure
 from . import memory
 from . import output as _io
 from ._common import CLIError, add_output_options, add_record_options, float_list, positive_float, positive_int
@@ -153,35 +154,7 @@ def run(args) -> int:
         certificate=dict(t=t0 + res.bound_t, gram_bound=res.gram_bound),
     )
     written = [_io.write_json(out / "estimate.json", report)]
-    written.append(_io.save_figure(figure(report), out / "estimate.png", dpi=110))
+    fig = online_estimate_figure(res, title=args.estimator, t0=t0)
+    written.append(_io.save_figure(fig, out / "estimate.png", dpi=110))
     print("\n".join(str(p) for p in written))
     return 0
-
-
-def figure(report):
-    """The estimate's figure: weights, prediction error, PE level and certificate over time."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(11, 7))
-    ax = fig.subplots(2, 2)
-    tr = report["trajectory"]
-    t, W = np.asarray(tr["t"]), np.asarray(tr["weights"])
-    for j in range(W.shape[1]):
-        ax[0, 0].plot(t, W[:, j], lw=0.8)
-    ax[0, 0].set(xlabel="t [s]", ylabel="weights", title=f"{report['estimator']}: weights")
-    ax[0, 1].semilogy(t, np.maximum(np.asarray(tr["error_rms"]), 1e-300), lw=0.8)
-    ax[0, 1].set(xlabel="t [s]", ylabel="RMS prediction error",
-                 title=f"a-priori error (final RMSE {report['final_rmse']:.3g})")
-    pe = report["pe"]
-    lv = np.asarray(pe["level"], float)
-    ax[1, 0].semilogy(np.asarray(pe["t"]), np.maximum(lv, 1e-300), "o-", ms=3)
-    ax[1, 0].set(xlabel="window start [s]", ylabel="PE level (normalised)", title="excitation per window")
-    c = report["certificate"]
-    if len(c["gram_bound"]):
-        ax[1, 1].semilogy(np.asarray(c["t"]), np.asarray(c["gram_bound"]), "o-", ms=3)
-        ax[1, 1].set(xlabel="t [s]", ylabel="bound on relative weight error", title="certificate (noise-free)")
-    else:
-        ax[1, 1].set_axis_off()
-        ax[1, 1].text(0.5, 0.5, "certificate: ContinuousRLS only", ha="center", va="center")
-    fig.tight_layout()
-    return fig

@@ -6,12 +6,11 @@ import sys
 import numpy as np
 
 from .._data.record import load_record
-from .._identification.compare import compare
 from .._identification.covariance import table as parameter_table
-from .._identification.fit import SOLVERS, fit_pi
-from .._identification.model_file import model_keys
-from .._identification.model_size import CRITERIA, HOLDOUT, holdout_mask, select_plays
-from .._identification.model_structure import select_model
+from .._identification.figures import fit_figure
+from .._identification.fit import SOLVERS
+from .._identification.identify import check_options, identify, plan
+from .._identification.model_size import CRITERIA
 from . import memory
 from . import output as _io
 from ._common import (
@@ -100,8 +99,6 @@ def _counts(what: str, one: str, example: str):
 plays_list = _counts("numbers of plays", "number of plays", "2,3,4")
 lags_list = _counts("lag counts", "lag count", "1,2,3")
 MODELS = ("auto", "pi", "pi+creep")
-CANDIDATES = (1, 2, 3, 4, 5, 6, 8, 10)
-LAGS = (1, 2, 3)
 
 
 def add_arguments(p):
@@ -164,174 +161,58 @@ def add_arguments(p):
     add_output_options(p, "piest-fit")
 
 
-def _rmse(a, b) -> float:
-    return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
+# `identify` names its options as `name` in its messages; here they read as the options typed.
+_OPTIONS = {"candidates": "--candidates", "criterion": "--criterion", "fit_from": "--fit-from",
+            "fit_initial_states": "--fit-initial-states", "initial_states": "--initial-states",
+            "lags": "--lags", "model": "--model", "plays": "--plays",
+            "time_constants": "--time-constants"}
+
+
+def _as_options(e: ValueError) -> CLIError:
+    text = str(e)
+    for name, option in _OPTIONS.items():
+        text = text.replace(f"`{name}`", option)
+    return CLIError(text)
 
 
 def run(args) -> int:
     import jax
 
-    if args.fit_initial_states and args.initial_states is not None:
-        raise CLIError("give either --initial-states or --fit-initial-states, not both")
-    _refuse_ignored(args)
-    args.candidates = args.candidates or list(CANDIDATES)
-    args.criterion = args.criterion or "holdout"
-    args.lags = args.lags or list(LAGS)
+    options = dict(model=args.model, plays=args.plays, lags=args.lags, time_constants=args.time_constants,
+                   candidates=args.candidates, criterion=args.criterion, initial_states=args.initial_states,
+                   fit_initial_states=args.fit_initial_states)
+    try:
+        check_options(**options)
+    except ValueError as e:
+        raise _as_options(e) from None
     names = OUTPUTS if args.validate else OUTPUTS[:3]
     out = _io.check_outputs(args.out, names, args.force)
     rec = load_record(args.data, resample=args.resample, columns=args.columns)
-    if np.ptp(rec.u) == 0:
-        raise CLIError(f"{args.data}: the input u is constant ({rec.u[0]:g}): it excites no play, "
-                       "so there is nothing to fit")
     val = load_record(args.validate, resample=args.resample, columns=args.columns) if args.validate else None
-    mask = None
-    if args.fit_from is not None:
-        if not np.isfinite(args.fit_from):
-            raise CLIError(f"--fit-from must be a finite time, got {args.fit_from}")
-        mask = (rec.t >= args.fit_from).astype(float)
-        if not mask.any():
-            raise CLIError(f"{args.data}: no sample at or after --fit-from {args.fit_from:g} "
-                           f"(the record ends at t = {rec.t[-1]:g})")
-    n_used = rec.n_samples if mask is None else int(mask.sum())
-    opts = dict(
-        mask=mask,
-        solver=args.solver,
-        n_starts=args.starts,
-        key=jax.random.key(args.seed),
-        positive_weights=not args.signed_weights,
-        fit_initial_states=args.fit_initial_states,
-        initial_states=args.initial_states,
-        max_threshold=args.max_threshold,
-        max_steps=args.max_steps,
-    )
-    if args.model == "pi" and args.time_constants is not None:
-        raise CLIError("--time-constants needs --model pi+creep or auto, not --model pi")
-    if args.criterion == "bic" and args.model != "pi":
-        raise CLIError(f"--criterion bic chooses the plays only; use it with --model pi "
-                       f"(--model {args.model} chooses by held-out error)")
-    lags = list(args.lags)
-    if args.time_constants is not None:
-        _check_time_constants(args.time_constants, rec)
-        lags = [len(args.time_constants)]
-        opts["time_constants0"] = args.time_constants
-    per_play = 3 if args.fit_initial_states else 2
-    selection = None
-    if args.model == "pi":
-        lag_choices = [0]
-    elif args.model == "pi+creep":
-        lag_choices = lags
-    else:
-        lag_choices = [0] + lags
-    plays = args.candidates if args.plays == "auto" else [args.plays]
-    used = np.ones(rec.n_samples) if mask is None else mask
-    if args.plays == "auto" or len(lag_choices) > 1:
-        used = used * holdout_mask(rec.n_samples, HOLDOUT)
-    n_fit = int(used.sum())
-    if args.plays == "auto":
-        cands = [c for c in plays if per_play * (c + max(lag_choices)) + 1 <= n_fit]
-        if not cands:
-            raise CLIError(
-                f"{args.data}: {n_used} samples{'' if mask is None else ' from --fit-from on'} "
-                "are too few to choose among --candidates "
-                f"{','.join(map(str, args.candidates))} (each needs {per_play}n + 1 fitted "
-                "samples, and a creep lag as many as a play)"
-            )
-    else:
-        cands = plays
-        # Lag counts the held-out part cannot carry are not tried; with none left the single
-        # fit below names the shortage.
-        fits = [k for k in lag_choices if per_play * (args.plays + k) + 1 <= n_fit]
-        lag_choices = fits or lag_choices[:1]
-    n_params = 3 * (max(cands) + max(lag_choices)) + 1
+    try:
+        p = plan(rec, fit_from=args.fit_from, **options)
+    except ValueError as e:
+        raise _as_options(e) from None
     memory.require(
-        memory.fit_bytes(rec.n_samples, args.starts, n_params),
-        f"--starts {args.starts} on {args.data} ({rec.n_samples} samples, up to {n_params} parameters)",
+        memory.fit_bytes(rec.n_samples, args.starts, p.n_parameters),
+        f"--starts {args.starts} on {args.data} ({rec.n_samples} samples, up to {p.n_parameters} parameters)",
         "use fewer --starts, fewer plays or a shorter record",
     )
-    if args.model == "pi" and args.plays == "auto":
-        opts.pop("time_constants0", None)
-        sel = select_plays(rec.u, rec.y, cands, criterion=args.criterion, quiet=args.quiet, **opts)
-        f = sel.fit
-        selection = {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores,
-                     "rejected": sel.rejected}
-    elif len(cands) == 1 and len(lag_choices) == 1:
-        f = fit_pi(rec.u, rec.y, cands[0], n_lags=lag_choices[0], dt=rec.dt, **opts)
-    else:
-        sel = select_model(rec.u, rec.y, rec.dt, cands, lag_choices, quiet=args.quiet, **opts)
-        f = sel.fit
-        base = [(c, s) for c, s in zip(sel.candidates, sel.scores) if c[1] == lag_choices[0]]
-        selection = {
-            "criterion": "holdout",
-            "candidates": [c[0] for c, _ in base],
-            "scores": [s for _, s in base],
-            "models": [{"n_plays": c[0], "n_lags": c[1], "score": s,
-                        "rejected": c in sel.rejected}
-                       for c, s in zip(sel.candidates, sel.scores)],
-        }
-    model = f.model()
-    # The model's keys (schema, structure, parameters, creep) as `save_model` writes them, so that
-    # `load_model` reads fit.json back.
-    report = {
-        **model_keys(model),
-        "data": str(args.data),
-        "n_samples": rec.n_samples,
-        "dt": rec.dt,
-        "model": {"structure": model.structure, "n_plays": f.n_plays, "n_lags": f.n_lags},
-        "n_plays": f.n_plays,
-        "rmse": f.rmse,
-        "flagged": f.flagged,
-        "solver": {
-            "name": args.solver,
-            "result": f.result_name,
-            "steps": f.n_steps,
-            "start_rmse": f.start_rmse,
-        },
-        "input_half_range": 0.5 * float(np.ptp(rec.u)),
-        # Where the model has seen data: `piest compensate` reports inputs outside it.
-        "input_range": [float(rec.u.min()), float(rec.u.max())],
-        "n_fitted_samples": n_used,
-        "std_errors": dict(zip(f.parameter_names, f.std_errors)),
-        "covariance": {"method": f.covariance_method, "parameter_names": f.parameter_names,
-                       "matrix": f.covariance},
-        "undetermined": f.undetermined_names,
-    }
-    if f.creep is not None:
-        report["creep"] = {
-            "time_constants": f.creep.time_constants,
-            "weights": f.creep.weights,
-            "dt": f.creep.dt,
-            # At rest: each lag starts at the first input of whatever record the model runs on.
-            "starts_at_rest": f.creep.initial_states is None,
-        }
-        if f.creep.initial_states is not None:
-            report["creep"]["initial_states"] = f.creep.initial_states
-    if args.fit_from is not None:
-        report["fit_from"] = args.fit_from
-    if selection:
-        report["selection"] = selection
-    written = []
-    if val is not None:
-        if f.creep is not None and not np.isclose(val.dt, rec.dt, rtol=1e-3):
-            raise CLIError(f"{args.validate}: sampled every {val.dt:g}, but the creep was "
-                           f"identified at {rec.dt:g}; use records with the same sampling")
-        m = model.with_initial_states(_validation_states(args, f, val))
-        raw = compare(m, val.u, val.y, estimate_initial=False)
-        ic = compare(m, val.u, val.y, estimate_initial=True)
-        yv = np.asarray(raw.prediction)
-        report["validate"] = str(args.validate)
-        report["validation_initial_states"] = _state_convention(args)
-        report["validation_starts_at_rest"] = starts_at_rest(val.u)
-        report["validation_rmse"] = float(raw.rmse)
-        report["validation_rmse_ic"] = float(ic.rmse)
-        report["validation_fit_percent"] = float(ic.fit_percent)
-        written.append(
-            _io.save_figure(_figure(val, yv, "validation"), out / "validation.png", dpi=110)
-        )
-    written.insert(0, _io.save_figure(_figure(rec, np.asarray(f(rec.u)), "fit", mask),
-                                      out / "fit.png", dpi=110))
+    result = identify(
+        rec, val, **options, fit_from=args.fit_from, solver=args.solver, key=jax.random.key(args.seed),
+        starts=args.starts, positive_weights=not args.signed_weights, max_threshold=args.max_threshold,
+        max_steps=args.max_steps, quiet=args.quiet,
+    )
+    f = result.fit
     table = parameter_table(f)
-    written.insert(0, _io.write_text(out / "fit.md", _markdown(args, f, table)))
-    written.insert(0, _io.write_json(out / "fit.json", report))
+    written = [_io.write_json(out / "fit.json", result.to_json()),
+               _io.write_text(out / "fit.md", _markdown(result, table)),
+               _io.save_figure(fit_figure(rec, np.asarray(f(rec.u)), title="fit", mask=result.mask),
+                               out / "fit.png", dpi=110)]
+    if result.validation is not None:
+        prediction = np.asarray(result.validation.raw.prediction)
+        written.append(_io.save_figure(fit_figure(val, prediction, title="validation"),
+                                       out / "validation.png", dpi=110))
     print(table, end="", file=sys.stderr)
     if f.undetermined_names:
         print(f"piest fit: warning: the record does not determine {', '.join(f.undetermined_names)} "
@@ -342,95 +223,20 @@ def run(args) -> int:
         idx = [int(i) + 1 for i in np.flatnonzero(np.asarray(f.flagged))]
         print(f"piest fit: note: plays {idx} are not excited by the input; their thresholds are "
               "not determined by the data", file=sys.stderr)
-    if val is not None and not report["validation_starts_at_rest"]:
+    if result.validation is not None and not result.validation.starts_at_rest:
         print(f"piest fit: note: {args.validate} does not start at rest, so the raw "
               "validation_rmse depends on the unknown states it starts from; "
               "validation_rmse_ic estimates them", file=sys.stderr)
-    for p in written:
-        print(p)
+    for path in written:
+        print(path)
     return 0
 
 
-def _refuse_ignored(args) -> None:
-    """Options that the chosen mode would ignore are refused rather than dropped silently."""
-    if args.plays != "auto":
-        for given, name in ((args.candidates, "--candidates"), (args.criterion, "--criterion")):
-            if given is not None:
-                raise CLIError(f"{name} is used only by --plays auto; --plays {args.plays} fixes the "
-                               "number of plays")
-    if args.lags is not None:
-        if args.model == "pi":
-            raise CLIError("--lags needs --model pi+creep or auto, not --model pi (no creep)")
-        if args.time_constants is not None:
-            raise CLIError("give either --lags or --time-constants (whose count fixes the lags), not both")
-
-
-def _check_time_constants(taus, rec) -> None:
-    duration = rec.t[-1] - rec.t[0]
-    for tau in taus:
-        if not tau > 0:
-            raise CLIError(f"--time-constants: {tau:g} is not positive; a creep time constant "
-                           "must be a positive time")
-        if tau < rec.dt:
-            raise CLIError(f"--time-constants: {tau:g} is shorter than the sampling interval "
-                           f"{rec.dt:g}: such a lag cannot be told from the input itself")
-        if tau > 100 * duration:
-            raise CLIError(f"--time-constants: {tau:g} is over 100 times the record's duration "
-                           f"{duration:g}: such a lag cannot be told from an offset")
-
-
-def starts_at_rest(u, fraction: float = 0.01, tolerance: float = 0.01) -> bool:
-    """Whether a record starts at rest: its input moves by less than `tolerance` of its range
-    over the first `fraction` of the record (at least two samples)."""
-    u = np.asarray(u, float)
-    head = u[: max(2, int(round(fraction * u.size)))]
-    return bool(np.ptp(head) <= tolerance * max(np.ptp(u), np.finfo(float).tiny))
-
-
-def _state_convention(args) -> str:
-    if args.fit_initial_states:
-        return "fitted (the identification record's)"
-    if args.initial_states is not None:
-        return f"given ({args.initial_states:g})"
-    return "first input (every play and lag at rest at the validation record's first input)"
-
-
-def _markdown(args, f, table) -> str:
-    lines = [f"# piest fit: {args.data}", "",
+def _markdown(result, table) -> str:
+    f = result.fit
+    lines = [f"# piest fit: {result.record.source}", "",
              f"{f.model().structure}, {f.n_plays} plays, {f.n_lags} lags; RMSE {float(f.rmse):.4g}; "
              f"standard errors: {f.covariance_method}.", "", table]
     if f.undetermined_names:
         lines += [f"Undetermined by the record: {', '.join(f.undetermined_names)}.", ""]
     return "\n".join(lines)
-
-
-def _validation_states(args, f, val):
-    if args.fit_initial_states:
-        return f.initial_states
-    return val.u[0] if args.initial_states is None else args.initial_states
-
-
-def _figure(rec, ym, what, mask=None):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    used = slice(None) if mask is None else mask > 0
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-    a1.plot(rec.u[used], rec.y[used], "k", lw=0.7, label="measured")
-    a1.plot(rec.u[used], ym[used], "C1", lw=0.7, label="model")
-    a1.set(xlabel="input u", ylabel="output y", title=f"{what}: loop")
-    a1.legend(fontsize=8)
-    a2.plot(rec.t, rec.y - ym, lw=0.6)
-    if mask is not None and not mask.all():
-        a2.axvspan(rec.t[0], rec.t[np.argmax(mask > 0)], color="0.85", label="not fitted")
-        a2.legend(fontsize=8)
-        # Scaled to the fitted samples: a transient left out would otherwise flatten the rest.
-        e = (rec.y - ym)[used]
-        pad = 0.1 * max(np.ptp(e), 1e-12)
-        a2.set_ylim(e.min() - pad, e.max() + pad)
-    rmse = _rmse(ym[used], rec.y[used])
-    a2.set(xlabel="time", ylabel="y - model", title=f"residual, RMSE {rmse:.4g}")
-    fig.tight_layout()
-    return fig

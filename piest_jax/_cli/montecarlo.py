@@ -1,11 +1,11 @@
 """`piest montecarlo`: the Monte Carlo map of persistent excitation against Assumption 1."""
 
 import jax
-import numpy as np
 
 from .._excitation.families import DEFAULT_FAMILIES, FAMILIES
+from .._excitation.map_figure import pe_map_figure
 from .._excitation.map_report import summarise
-from .._excitation.map_settings import make_settings, numerical_tolerance
+from .._excitation.map_settings import make_settings
 from .._excitation.montecarlo import pe_map
 from . import memory
 from . import output as _io
@@ -103,7 +103,6 @@ def run(args) -> int:
         play_method=args.play_method,
     )
     res = pe_map(jax.random.key(args.seed), args.inputs, settings, chunk=args.chunk, quiet=args.quiet)
-    tol = numerical_tolerance(settings.dtype)
     summary = summarise(res, settings)
     report = {
         "n_inputs": args.inputs,
@@ -120,71 +119,8 @@ def run(args) -> int:
             "exact_level", "margin",
         )
     } | {"weight_error": res["weight_error"], "thresholds": res["thresholds"]}
-    written = [_io.save_figure(_figure(res, settings, tol), out / "pe_map.png", dpi=110)]
+    written = [_io.save_figure(pe_map_figure(res, settings), out / "pe_map.png", dpi=110)]
     written.append(_io.write_json(out / "pe_map.json", report))
     for path in written:
         print(path)
     return 0
-
-
-def _figure(res, settings, tol):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rho = res["rho"]
-    c1n = res["c1_normalised"]
-    pe = c1n > tol
-    floor = tol / 10
-    fig, (a1, a2, a3, a4) = plt.subplots(1, 4, figsize=(20, 4.5))
-    for f in settings.families:
-        m = res["family"] == f
-        a1.scatter(rho[m], np.maximum(c1n[m], floor), s=6, alpha=0.6, label=FAMILIES[f])
-    a1.axvline(1.0, color="k", lw=1, ls="--", label="ρ = 1 (Assumption 1)")
-    a1.axhline(tol, color="r", lw=1, ls=":", label=f"tolerance {tol:.1e}")
-    a1.set(
-        xscale="log",
-        yscale="log",
-        xlabel="Assumption 1 ratio ρ(T0)",
-        ylabel="normalised PE level c1 (λmin/λmax)",
-        title="PE level against Assumption 1",
-    )
-    a1.legend(fontsize=7, markerscale=2)
-    edges = np.quantile(rho, np.linspace(0, 1, 16))
-    edges = np.unique(edges)
-    idx = np.clip(np.searchsorted(edges, rho, side="right") - 1, 0, len(edges) - 2)
-    frac = [pe[idx == b].mean() if np.any(idx == b) else np.nan for b in range(len(edges) - 1)]
-    sharp = [
-        res["sharper"][idx == b].mean() if np.any(idx == b) else np.nan
-        for b in range(len(edges) - 1)
-    ]
-    mids = np.sqrt(np.maximum(edges[:-1], 1e-6) * np.maximum(edges[1:], 1e-6))
-    a2.plot(mids, frac, "o-", label="PE (c1 > tolerance)")
-    exact = [
-        res["exact"][idx == b].mean() if np.any(idx == b) else np.nan
-        for b in range(len(edges) - 1)
-    ]
-    a2.plot(mids, exact, "x-.", label="exact condition holds")
-    a2.plot(mids, sharp, "s--", label="sharper condition holds")
-    a2.axvline(1.0, color="k", lw=1, ls="--")
-    a2.set(xscale="log", ylim=(-0.05, 1.05), xlabel="ρ(T0)", ylabel="fraction of draws",
-           title="fraction PE against ρ")
-    a2.legend(fontsize=8)
-    err = np.maximum(res["weight_error"], 1e-18)
-    a3.scatter(np.maximum(c1n, floor), err, s=6, alpha=0.5, c=np.where(pe, "C0", "C3"))
-    a3.axvline(tol, color="r", lw=1, ls=":")
-    a3.set(xscale="log", yscale="log", xlabel="normalised PE level c1",
-           ylabel="RLS ‖Ŵ − W‖ / ‖W‖ after the record", title="weight error against c1")
-    # The margin (a lower bound on c1 from the input's swings between events) against c1.
-    ok = res["exact"] & (res["margin"] > 0) & (res["c1"] > 0)
-    if np.any(ok):
-        m, c = res["margin"][ok], res["c1"][ok]
-        a4.scatter(m, c, s=6, alpha=0.5)
-        lo, hi = min(m.min(), c.min()), max(m.max(), c.max())
-        a4.plot([lo, hi], [lo, hi], "k--", lw=1, label="c1 = margin")
-        a4.legend(fontsize=8)
-    a4.set(xscale="log", yscale="log", xlabel="margin (lower bound from the input)",
-           ylabel="PE level c1", title="c1 against its guaranteed margin")
-    fig.tight_layout()
-    return fig

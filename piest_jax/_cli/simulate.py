@@ -4,6 +4,7 @@ import numpy as np
 
 from .._data.record import load_record
 from .._excitation import signals as _signals
+from .._operators.figure import loop_figure
 from .._operators.pi import PIOperator
 from . import memory
 from . import output as _io
@@ -31,7 +32,6 @@ example:  piest simulate --input triangle --amplitude 5 --thresholds 0,1,2,3 --o
 OUTPUTS = ("simulate.csv", "loop.png", "simulate.json")
 MAX_SAMPLES = 10_000_000
 MAX_VALUES = 50_000_000  # samples x plays in the CSV (about 1 GB of text)
-MAX_PLOTTED_PLAYS = 12
 
 
 def add_arguments(p):
@@ -181,7 +181,7 @@ def run(args) -> int:
             )
     cols = {"t": t, "u": u, "y": y} | {f"x_{j + 1}": H[:, j] for j in range(H.shape[1])}
     written = [_io.write_csv(out / "simulate.csv", cols)]
-    written.append(_io.save_figure(_figure(t, u, y, H, op), out / "loop.png", dpi=120))
+    written.append(_io.save_figure(loop_figure(t, u, y, H, op.thresholds), out / "loop.png", dpi=120))
     summary = {
         "thresholds": op.thresholds,
         "weights": op.weights,
@@ -196,22 +196,3 @@ def run(args) -> int:
     for p in written:
         print(p)
     return 0
-
-
-def _figure(t, u, y, H, op):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
-    a1.plot(u, y, lw=1)
-    a1.set(xlabel="input u", ylabel="output y", title="PI operator loop")
-    # Many plays would make an unreadable (and slow) plot: draw an even selection of them.
-    shown = np.unique(np.linspace(0, H.shape[1] - 1, min(H.shape[1], MAX_PLOTTED_PLAYS)).round())
-    for j in shown.astype(int):
-        a2.plot(t, H[:, j], lw=1, label=f"r = {float(op.thresholds[j]):.3g}")
-    a2.set(xlabel="time [s]", ylabel="play output", title="play outputs")
-    a2.legend(fontsize=8)
-    fig.tight_layout()
-    return fig
