@@ -5,7 +5,6 @@ import sys
 
 import numpy as np
 
-from .._data.record import load_record
 from .._identification.compare import compare
 from .._identification.covariance import table as parameter_table
 from .._identification.fit import SOLVERS, fit_pi
@@ -22,6 +21,8 @@ from ._common import (
     float_list,
     positive_float,
     positive_int,
+    read_record,
+    record_fields,
     seed,
 )
 
@@ -179,11 +180,11 @@ def run(args) -> int:
     args.lags = args.lags or list(LAGS)
     names = OUTPUTS if args.validate else OUTPUTS[:3]
     out = _io.check_outputs(args.out, names, args.force)
-    rec = load_record(args.data, resample=args.resample, columns=args.columns)
+    rec = read_record(args.data, args)
     if np.ptp(rec.u) == 0:
         raise CLIError(f"{args.data}: the input u is constant ({rec.u[0]:g}): it excites no play, "
                        "so there is nothing to fit")
-    val = load_record(args.validate, resample=args.resample, columns=args.columns) if args.validate else None
+    val = read_record(args.validate, args) if args.validate else None
     mask = None
     if args.fit_from is not None:
         if not np.isfinite(args.fit_from):
@@ -276,6 +277,7 @@ def run(args) -> int:
         "data": str(args.data),
         "n_samples": rec.n_samples,
         "dt": rec.dt,
+        **record_fields(rec, args),
         "model": {"structure": model.structure, "n_plays": f.n_plays, "n_lags": f.n_lags},
         "n_plays": f.n_plays,
         "rmse": f.rmse,
