@@ -159,7 +159,8 @@ def test_an_empty_out_is_refused(command, files, capsys):
 def test_an_unwritable_out_is_found_before_the_computation(files, capsys):
     # /proc/self is a folder that no one, root included, can create files in.
     code, o, err = _run(capsys, ["fit", files["rec"], "--out", "/proc/self"])
-    assert (code, o) == (2, "") and err.startswith("piest fit: error: --out /proc/self: cannot write there"), err
+    assert (code, o) == (2, "") and err.startswith("piest fit: error: --out /proc/self: cannot write there (it takes "
+                                                    "no new files)"), err
     assert ".tmp" not in err
 
 
