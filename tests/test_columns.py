@@ -135,7 +135,11 @@ def test_one_segment_of_a_record_without_time(tmp_path, capsys):
     alone = tmp_path / "alone.csv"
     alone.write_text("u,y\n" + "".join(f"{a!r},{c!r}\n" for a, c in zip(h[40:80].tolist(), b[40:80].tolist())))
     reps, errs = [], []
-    for name, argv in (("a", [str(loops), "--columns", "H,B", "--segment", "1"]), ("b", [str(alone)])):
+    # --segment picks from the data file; the --validate record (of one segment) is read whole.
+    val = tmp_path / "val.csv"
+    val.write_text("H,B\n" + alone.read_text().split("\n", 1)[1])
+    first = [str(loops), "--columns", "H,B", "--segment", "1", "--validate", str(val)]
+    for name, argv in (("a", first), ("b", [str(alone)])):
         code, _, err = _run(capsys, ["fit", *argv, "--model", "pi", "--plays", "2", "--starts", "2",
                                      "--max-steps", "30", "--quiet", "--out", str(tmp_path / name)])
         assert code == 0, err
@@ -143,10 +147,11 @@ def test_one_segment_of_a_record_without_time(tmp_path, capsys):
         errs.append(err)
     a, b_ = reps
     assert (a["thresholds"], a["weights"], a["rmse"]) == (b_["thresholds"], b_["weights"], b_["rmse"])
-    assert a["n_samples"] == 40 and a["dt"] == 1.0
+    assert a["n_samples"] == 40 and a["dt"] == 1.0 and a["validation_rmse"] == pytest.approx(a["rmse"], rel=1e-6)
     assert (a["time_unit"], a["segment"]) == ("sample", 1.0) and b_["time_unit"] == "sample" and "segment" not in b_
-    assert errs[0].endswith(f"piest fit: note: {loops} has no time in seconds: t counts samples (step 1), so the "
-                            "times, time constants and rates in the results are in samples\n")
+    for path in (loops, val):
+        assert (f"piest fit: note: {path} has no time in seconds: t counts samples (step 1), so the times, time "
+                "constants and rates in the results are in samples\n") in errs[0]
 
 
 def test_every_command_reading_a_record_says_its_time_counts_samples(tmp_path, capsys):

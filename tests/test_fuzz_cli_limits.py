@@ -137,6 +137,9 @@ CASES = [
     (["fit", "{seg}", "--segment", "5"], "{seg}: no segment labelled 5; the labels are 0, 1, 2"),
     (["fit", "{rec}", "--segment", "0"], "{rec}: no `segment` column to select segment 0 from"),
     (["simulate", "--segment", "1"], "--segment is only used with --input csv"),
+    (["fit", "{seg}", "--segment", "1", "--validate", "{seg}"],
+     "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not continuous in time, and the plays' "
+     "memory would run on from one into the next; give a record of one segment to --validate"),
     (["fit", "{seg}", "--segment", "nan"], "argument --segment: must be a finite number"),
 ]
 

@@ -133,11 +133,12 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def read_record(path, args):
+def read_record(path, args, *, validation: bool = False):
     """The record `path` as the options of `add_record_options` ask: one segment of it, and a
     note on stderr when its time counts samples.
 
-    **Arguments:** `path`, the data file; `args`, the parsed options.
+    **Arguments:** `path`, the data file; `args`, the parsed options; `validation`, the file is
+    a `--validate` record, to which `--segment` (a label of the data file) does not apply.
 
     **Returns:** the [`Record`][piest_jax.Record]. Raises `CLIError` for a record of several
     segments without `--segment`: the plays' memory would run on from one segment into the next.
@@ -145,14 +146,14 @@ def read_record(path, args):
     from .._data.record import load_record
 
     rec = load_record(path, resample=args.resample, columns=args.columns)
-    if args.segment is not None:
+    if args.segment is not None and not validation:
         rec = rec.select_segment(args.segment)
     elif rec.n_segments > 1:
         labels = ", ".join(f"{s.segment[0]:g}" for s in rec.segments())
+        choose = "give a record of one segment to --validate" if validation else "choose one with --segment LABEL"
         raise CLIError(
             f"{path} holds {rec.n_segments} segments (labels {labels}): their boundaries are not "
-            "continuous in time, and the plays' memory would run on from one into the next; "
-            "choose one with --segment LABEL"
+            f"continuous in time, and the plays' memory would run on from one into the next; {choose}"
         )
     if rec.time_is_index:
         note(args, f"{path} has no time in seconds: t counts samples (step 1), so the times, "

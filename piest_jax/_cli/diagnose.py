@@ -75,7 +75,7 @@ def run(args) -> int:
         raise CLIError(f"--max-effects must be at least 1, got {args.max_effects}")
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     rec = read_record(args.data, args)
-    val = read_record(args.validate, args) if args.validate else None
+    val = read_record(args.validate, args, validation=True) if args.validate else None
     # Refuse unusable records before the (long) search, not after it.
     n = rec.n_samples + (0 if val is None else val.n_samples)
     memory.require(memory.diagnose_bytes(n), f"{args.data}{' and ' + args.validate if val else ''} "

@@ -184,7 +184,7 @@ def run(args) -> int:
     if np.ptp(rec.u) == 0:
         raise CLIError(f"{args.data}: the input u is constant ({rec.u[0]:g}): it excites no play, "
                        "so there is nothing to fit")
-    val = read_record(args.validate, args) if args.validate else None
+    val = read_record(args.validate, args, validation=True) if args.validate else None
     mask = None
     if args.fit_from is not None:
         if not np.isfinite(args.fit_from):
