@@ -87,3 +87,39 @@ def test_fit_pi_takes_numpy_integers_for_its_counts():
     np.testing.assert_array_equal(np.asarray(a.thresholds), np.asarray(b.thresholds))
     with pytest.raises(ValueError, match="`max_steps` must be a positive whole number, got 2.5"):
         pj.fit_pi(u, y, 2, max_steps=2.5)
+
+
+# Every public function taking a key, called with (new-style, legacy) keys of the same seed.
+KEYED = {
+    "draw_case": lambda k: pj.draw_case(k, "sine", jnp.asarray(T_GRID[:200]), 3),
+    "run_batch": lambda k: pj.run_batch(jnp.stack([U[:200], U[:200]]), jnp.ones((2, 3)), R, key=k,
+                                        noise_std=0.1).final_weights,
+    "fit_pi": lambda k: pj.fit_pi(np.asarray(U[:400]), np.asarray(H[:400].sum(axis=1)), 2, n_starts=3,
+                                  max_steps=3, key=k).thresholds,
+    "hidden_effect_record": lambda k: pj.hidden_effect_record((), key=k, n_samples=300)[0].y,
+}
+
+
+@pytest.mark.parametrize("name", list(KEYED))
+def test_every_key_taker_takes_both_kinds_and_names_a_wrong_one(name):
+    f = KEYED[name]
+    for a, b in zip(jax.tree.leaves(f(jax.random.key(5))), jax.tree.leaves(f(jax.random.PRNGKey(5)))):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    for bad in (0, np.zeros(3), jax.random.split(jax.random.key(0), 2)):
+        with pytest.raises(ValueError, match=r"`key` must be (a PRNG key such as jax.random.key\(0\)|one PRNG key)"):
+            f(bad)
+
+
+def test_numpy_integers_in_fit_preisach_and_compare():
+    t = np.arange(300) * 1e-3
+    u = np.sin(2 * np.pi * 3 * t) * (1 + 0.5 * np.sin(2 * np.pi * 0.7 * t))
+    y = np.asarray(pj.PIOperator([0.0, 0.3], [1.0, 0.5])(u))
+    a = pj.fit_preisach(u, y, n_widths=3, n_centres=3, n_blocks=3, chunk=64)
+    b = pj.fit_preisach(u, y, n_widths=np.int64(3), n_centres=np.int32(3), n_blocks=np.int64(3), chunk=np.int64(64))
+    assert a.smoothness == b.smoothness
+    np.testing.assert_array_equal(np.asarray(a.model.density), np.asarray(b.model.density))
+    fit = pj.fit_pi(u, y, 2, n_starts=2, max_steps=5)
+    c, d = pj.compare(fit, u, y, max_steps=5), pj.compare(fit, u, y, max_steps=np.int64(5))
+    np.testing.assert_array_equal(np.asarray(c.prediction), np.asarray(d.prediction))
+    with pytest.raises(ValueError, match="`max_steps` must be a positive whole number, got 5.0"):
+        pj.compare(fit, u, y, max_steps=5.0)

@@ -96,8 +96,9 @@ def test_piest_fit_with_columns_fits_the_record(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, needle",
     [
-        (["fit", "x.csv", "--columns", "a,b"], "argument --columns: expected 3 distinct column names"),
-        (["fit", "x.csv", "--columns", "a,A,b"], "expected 3 distinct column names"),
+        (["fit", "x.csv", "--columns", "a,b,c,d"], "argument --columns: expected 2 or 3 distinct column names"),
+        (["fit", "x.csv", "--columns", "a,A,b"], "expected 2 or 3 distinct column names"),
+        (["fit", "x.csv", "--columns", "a,A"], "expected 2 or 3 distinct column names"),
         (["compensate", "m.json", "d.csv", "--columns", "t,d,e"], "expected 2 distinct column names"),
         (["simulate", "--columns", "a,b,c"], "--columns is only used with --input csv"),
         (["simulate", "--resample"], "--resample is only used with --input csv"),
@@ -120,3 +121,54 @@ def test_compensate_with_columns(tmp_path, capsys):
     res = np.loadtxt(out / "compensate.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(res[:, 1], Y)
     np.testing.assert_allclose(res[:, 3], Y, atol=1e-9)
+
+
+def test_one_segment_of_a_record_without_time(tmp_path, capsys):
+    # B-H loops as the shipped files hold them: segment, H, B. One loop, chosen with --segment,
+    # fits as the same loop written alone; its time counts samples, which the command says.
+    k = np.arange(120)
+    h = np.repeat([1.0, 2.0, 3.0], 40) * np.cos(2 * np.pi * k / 40)
+    b = np.asarray(pj.PIOperator([0.0, 0.4], [1.0, 0.5])(h))
+    loops = tmp_path / "loops.csv"
+    loops.write_text("segment,H [A/m],B [T]\n" + "".join(f"{k // 40},{a!r},{c!r}\n" for k, (a, c) in
+                                                       enumerate(zip(h.tolist(), b.tolist()))))
+    alone = tmp_path / "alone.csv"
+    alone.write_text("u,y\n" + "".join(f"{a!r},{c!r}\n" for a, c in zip(h[40:80].tolist(), b[40:80].tolist())))
+    reps, errs = [], []
+    # --segment picks from the data file; the --validate record (of one segment) is read whole.
+    val = tmp_path / "val.csv"
+    val.write_text("H,B\n" + alone.read_text().split("\n", 1)[1])
+    first = [str(loops), "--columns", "H,B", "--segment", "1", "--validate", str(val)]
+    for name, argv in (("a", first), ("b", [str(alone)])):
+        code, _, err = _run(capsys, ["fit", *argv, "--model", "pi", "--plays", "2", "--starts", "2",
+                                     "--max-steps", "30", "--quiet", "--out", str(tmp_path / name)])
+        assert code == 0, err
+        reps.append(json.loads((tmp_path / name / "fit.json").read_text()))
+        errs.append(err)
+    a, b_ = reps
+    assert (a["thresholds"], a["weights"], a["rmse"]) == (b_["thresholds"], b_["weights"], b_["rmse"])
+    assert a["n_samples"] == 40 and a["dt"] == 1.0 and a["validation_rmse"] == pytest.approx(a["rmse"], rel=1e-6)
+    assert (a["time_unit"], a["segment"]) == ("sample", 1.0) and b_["time_unit"] == "sample" and "segment" not in b_
+    for path in (loops, val):
+        assert (f"piest fit: note: {path} has no time in seconds: t counts samples (step 1), so the times, time "
+                "constants and rates in the results are in samples\n") in errs[0]
+
+
+def test_every_command_reading_a_record_says_its_time_counts_samples(tmp_path, capsys):
+    k = np.arange(600)
+    u = np.sin(2 * np.pi * k / 100) * (1 + 0.5 * np.sin(2 * np.pi * k / 370))
+    y = 0.5 * u + 0.1 * np.cos(2 * np.pi * k / 100)
+    data = tmp_path / "uy.csv"
+    data.write_text("u,y\n" + "".join(f"{a!r},{b!r}\n" for a, b in zip(u.tolist(), y.tolist())))
+    runs = {
+        "diagnose": ([str(data), "--max-effects", "1", "--candidates", "creep", "--solver", "none"],
+                     "report.json", lambda rep: rep["time_unit"]),
+        "estimate": ([str(data), "--plays", "3"], "estimate.json", lambda rep: rep["time_unit"]),
+        "simulate": (["--input", "csv", "--csv", str(data)], "simulate.json", lambda rep: rep["input"]["time_unit"]),
+    }
+    for command, (argv, name, unit) in runs.items():
+        out = tmp_path / command
+        code, _, err = _run(capsys, [command, *argv, "--quiet", "--out", str(out)])
+        assert code == 0, err
+        assert unit(json.loads((out / name).read_text())) == "sample"
+        assert f"piest {command}: note: {data} has no time in seconds: t counts samples (step 1)" in err

@@ -1,5 +1,7 @@
 """Loading measured records: formats that must load, and each rejection with its message."""
 
+import types
+
 import numpy as np
 import pytest
 
@@ -227,10 +229,14 @@ def test_shipped_data_sets_all_load():
         path = dataset_path(name)
         assert path.name == f"{name}.csv" and path.is_file()
         if name.startswith("bh_"):
-            # B-H loops: columns loop, H, B (no time axis), read with NumPy.
+            # B-H loops: columns segment, H, B (no time axis): one segment a loop, t the sample.
             data = np.loadtxt(path, delimiter=",", skiprows=1)
-            assert data.shape[1] == 3 and np.all(np.isfinite(data))
-            assert path.read_text().splitlines()[0] == "loop,H,B"
+            assert path.read_text().splitlines()[0] == "segment,H,B"
+            rec = load_dataset(name, columns="H,B")
+            assert rec.time_is_index and rec.dt == 1.0
+            np.testing.assert_array_equal(rec.t, np.arange(len(data)))
+            np.testing.assert_array_equal(np.c_[rec.segment, rec.u, rec.y], data)
+            assert rec.n_segments == len(np.unique(data[:, 0])) >= 3
             with pytest.raises(DataError, match="no header row naming the columns t, u and y"):
                 load_dataset(name)
         else:
@@ -304,3 +310,141 @@ def test_from_dataframe_matches_from_arrays():
     np.testing.assert_array_equal(rec.extras["desired"], ref.extras["desired"])
     with pytest.raises(DataError, match=r"<DataFrame>: missing column\(s\) y: the frame has t, u"):
         Record.from_dataframe(df[["T", "u"]])
+
+
+# Data without time and records made of segments (docs/data.md).
+
+
+def _uy(n=20):
+    k = np.arange(n)
+    return np.sin(k / 3).tolist(), np.cos(k / 3).tolist()
+
+
+@pytest.mark.parametrize("header, index", [("u,y", None), ("n,u,y", "n"), ("sample [#],y,u", "sample")])
+def test_data_without_time_count_samples(tmp_path, header, index):
+    u, y = _uy()
+    names = [c.split(" ")[0] for c in header.split(",")]
+    cols = {"u": u, "y": y, index: 1 + np.arange(20.0)}
+    text = header + "\n" + "".join(",".join(repr(float(cols[c][k])) for c in names) + "\n" for k in range(20))
+    rec = load_record(_csv(tmp_path, text))
+    assert rec.time_is_index and rec.dt == 1.0 and rec.extras == {}
+    np.testing.assert_array_equal(rec.t, cols[index] if index else np.arange(20.0))
+    np.testing.assert_array_equal(rec.u, u)
+    np.testing.assert_array_equal(rec.y, y)
+
+
+def test_a_sample_index_with_a_missing_row_is_caught(tmp_path):
+    u, y = _uy()
+    text = "n,u,y\n" + "".join(f"{k},{u[k]!r},{y[k]!r}\n" for k in range(20) if k != 7)
+    _fails(tmp_path, text, r"row 9: non-uniform sampling: step 2 against the median 1")
+
+
+def test_a_time_column_by_another_name_is_not_taken_for_an_index(tmp_path):
+    u, y = _uy()
+    text = "time,u,y\n" + "".join(f"{0.1 * k!r},{u[k]!r},{y[k]!r}\n" for k in range(20))
+    _fails(tmp_path, text, r"row 1: no time column `t`: the header has time, u, y; name its time, input and "
+                           r"output with columns=")
+    rec = load_record(_csv(tmp_path, text), columns="time,u,y")
+    assert not rec.time_is_index and rec.dt == pytest.approx(0.1)
+
+
+def test_two_columns_name_input_and_output(tmp_path):
+    u, y = _uy()
+    text = "H [A/m],B [T],t\n" + "".join(f"{u[k]!r},{y[k]!r},{9.0 - k}\n" for k in range(20))
+    rec = load_record(_csv(tmp_path, text), columns=("H", "B"))
+    assert rec.time_is_index
+    np.testing.assert_array_equal(rec.t, np.arange(20.0))
+    np.testing.assert_array_equal(rec.u, u)
+    np.testing.assert_array_equal(rec.y, y)
+    # The same from arrays, an NPZ without `t`, and a frame.
+    same = [Record.from_arrays(None, u, y), load_record(_npz(tmp_path, u=u, y=y))]
+    same.append(Record.from_dataframe(_Frame({"H [A/m]": u, "B": y, "t": 9.0 - np.arange(20)}), columns="H,B"))
+    for r in same:
+        assert r.time_is_index
+        for name in ("t", "u", "y"):
+            np.testing.assert_array_equal(getattr(r, name), getattr(rec, name))
+    with pytest.raises(ValueError, match="columns= needs three distinct names, .* or two"):
+        load_record(_csv(tmp_path, text), columns=("H",))
+
+
+def _npz(tmp_path, **arrays):
+    p = tmp_path / "d.npz"
+    np.savez(p, **arrays)
+    return p
+
+
+class _Frame:
+    """As much of a pandas DataFrame as `Record.from_dataframe` uses."""
+
+    def __init__(self, cols):
+        self._cols = cols
+        self.columns = list(cols)
+
+    def __getitem__(self, name):
+        return types.SimpleNamespace(to_numpy=lambda: np.asarray(self._cols[name]))
+
+
+def test_from_dataframe_takes_columns_as_load_record_does(tmp_path):
+    t, u, y = _rows(12)
+    frame = _Frame({"time_s": t, "voltage [V]": u, "displacement_um": y, "desired": 2 * u})
+    rec = Record.from_dataframe(frame, columns=("time_s", "voltage", "displacement_um"))
+    path = _csv(tmp_path, _table(t, u, y, header="time_s,voltage [V],displacement_um,desired", extra=2 * u))
+    ref = load_record(path, columns="time_s,voltage,displacement_um")
+    for name in ("t", "u", "y"):
+        np.testing.assert_array_equal(getattr(rec, name), getattr(ref, name))
+    np.testing.assert_array_equal(rec.extras["desired"], ref.extras["desired"])
+    with pytest.raises(DataError, match=r"<DataFrame>: missing column\(s\) volts: the frame has time_s"):
+        Record.from_dataframe(frame, columns="time_s,volts,displacement_um")
+
+
+def _segmented(tmp_path, labels, t_of=lambda k, j: 0.5 * j, n=10, name="s.csv"):
+    lines = ["segment,t,u,y"]
+    for i, label in enumerate(labels):
+        for j in range(n):
+            k = i * n + j
+            lines.append(f"{label},{t_of(i, j)!r},{float(np.sin(k / 3))!r},{float(np.cos(k / 3))!r}")
+    return _csv(tmp_path, "\n".join(lines) + "\n", name)
+
+
+def test_segments_restart_time_and_split_into_records(tmp_path):
+    rec = load_record(_segmented(tmp_path, [3, 1, 2]))
+    assert rec.n_segments == 3 and not rec.time_is_index and rec.extras == {}
+    np.testing.assert_array_equal(rec.segment, np.repeat([3.0, 1.0, 2.0], 10))
+    parts = rec.segments()
+    assert [p.segment[0] for p in parts] == [3, 1, 2]
+    for i, p in enumerate(parts):
+        assert p.n_segments == 1 and p.n_samples == 10
+        np.testing.assert_array_equal(p.t, 0.5 * np.arange(10))
+        np.testing.assert_array_equal(p.u, np.sin((10 * i + np.arange(10)) / 3))
+    np.testing.assert_array_equal(rec.select_segment(1).y, parts[1].y)
+    with pytest.raises(DataError, match=r"no segment labelled 7; the labels are 3, 1, 2"):
+        rec.select_segment(7)
+    assert Record.from_arrays(*_rows(10)).segments()[0].n_samples == 10
+
+
+def test_each_segment_is_checked_on_its_own(tmp_path):
+    # Time restarting at a boundary is fine; inside a segment it must increase uniformly.
+    with pytest.raises(DataError, match=r"row 22: segment 0 starts again after other segments \(it began at row 2\)"):
+        load_record(_segmented(tmp_path, [0, 1, 0]))
+    backwards = _segmented(tmp_path, [0, 1], t_of=lambda i, j: 0.5 * j if (i, j) != (1, 4) else 0.1)
+    with pytest.raises(DataError, match=r"row 16: time is not strictly increasing"):
+        load_record(backwards)
+    slow = _segmented(tmp_path, [0, 1, 2], t_of=lambda i, j: (1.0 if i == 1 else 0.5) * j)
+    with pytest.raises(DataError, match=r"row 13: non-uniform sampling: step 1 against the median 0.5"):
+        load_record(slow)
+    rec = load_record(slow, resample=True)
+    assert [p.n_samples for p in rec.segments()] == [10, 19, 10]
+    np.testing.assert_allclose(np.diff(rec.segments()[1].t), 0.5)
+    with pytest.raises(DataError, match=r"segment 1 \(row 12\) has only 3 samples; at least 8"):
+        load_record(_csv(tmp_path, "\n".join(
+            ["segment,t,u,y"] + [f"0,{j},{np.sin(j)},{j}" for j in range(10)]
+            + [f"1,{j},{np.sin(j)},{j}" for j in range(3)]) + "\n"))
+
+
+def test_a_segment_column_of_an_index_record(tmp_path):
+    text = "segment,u,y\n" + "".join(f"{k // 12},{float(np.sin(k))!r},{float(np.cos(k))!r}\n" for k in range(36))
+    rec = load_record(_csv(tmp_path, text))
+    assert rec.time_is_index and rec.n_segments == 3
+    np.testing.assert_array_equal(rec.t, np.arange(36.0))
+    seg = Record.from_arrays(None, rec.u, rec.y, segment=rec.segment)
+    np.testing.assert_array_equal(seg.segment, rec.segment)

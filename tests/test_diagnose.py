@@ -39,6 +39,7 @@ def test_noise_floor_estimate():
         (lambda r: Record(r.t, r.u, np.where(np.arange(len(r.t)) == 9, np.inf, r.y)), "`y` has 1 NaN"),
         (lambda r: Record(r.t, np.full(len(r.t), 2.0), r.y), "no excitation: the input u is constant"),
         (lambda r: Record(r.t, r.t.copy(), r.y), "never reverses direction"),
+        (lambda r: Record(r.t, -np.abs(r.t - r.t[len(r.t) // 2]), r.y), "reverses direction only once"),
         (lambda r: Record(r.t, r.u, np.full(len(r.t), 3.0)), "constant output"),
     ],
 )

@@ -50,7 +50,10 @@ def files(tmp_path):
     gap.write_text("t,u,y\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in zip(tg.tolist(), U.tolist(), Y.tolist())))
     model = tmp_path / "model.json"
     model.write_text(json.dumps(MODEL))
-    return {"rec": str(rec), "gap": str(gap), "model": str(model), "dir": tmp_path}
+    seg = tmp_path / "seg.csv"
+    seg.write_text("segment,t,u,y\n" + "".join(f"{k // 100},{a!r},{b!r},{c!r}\n" for k, (a, b, c) in
+                                               enumerate(zip((T % 1).tolist(), U.tolist(), Y.tolist()))))
+    return {"rec": str(rec), "gap": str(gap), "model": str(model), "seg": str(seg), "dir": tmp_path}
 
 
 def _run(capsys, argv, *, stop=True):
@@ -125,6 +128,19 @@ CASES = [
     (["simulate", "--input", "csv", "--csv", "{gap}"], "(CLI: --resample)"),
     (["diagnose", "{gap}"], "(CLI: --resample)"),
     (["estimate", "{gap}"], "(CLI: --resample)"),
+    # a record of several segments: no command runs across their boundaries
+    (["fit", "{seg}", "--plays", "2"], "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not "
+     "continuous in time, and the plays' memory would run on from one into the next; choose one with --segment"),
+    (["diagnose", "{seg}"], "{seg} holds 3 segments"),
+    (["estimate", "{seg}"], "{seg} holds 3 segments"),
+    (["simulate", "--input", "csv", "--csv", "{seg}"], "{seg} holds 3 segments"),
+    (["fit", "{seg}", "--segment", "5"], "{seg}: no segment labelled 5; the labels are 0, 1, 2"),
+    (["fit", "{rec}", "--segment", "0"], "{rec}: no `segment` column to select segment 0 from"),
+    (["simulate", "--segment", "1"], "--segment is only used with --input csv"),
+    (["fit", "{seg}", "--segment", "1", "--validate", "{seg}"],
+     "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not continuous in time, and the plays' "
+     "memory would run on from one into the next; give a record of one segment to --validate"),
+    (["fit", "{seg}", "--segment", "nan"], "argument --segment: must be a finite number"),
 ]
 
 
@@ -146,7 +162,8 @@ def test_an_empty_out_is_refused(command, files, capsys):
 def test_an_unwritable_out_is_found_before_the_computation(files, capsys):
     # /proc/self is a folder that no one, root included, can create files in.
     code, o, err = _run(capsys, ["fit", files["rec"], "--out", "/proc/self"])
-    assert (code, o) == (2, "") and err.startswith("piest fit: error: --out /proc/self: cannot write there"), err
+    assert (code, o) == (2, "") and err.startswith("piest fit: error: --out /proc/self: cannot write there (it takes "
+                                                    "no new files)"), err
     assert ".tmp" not in err
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from . import interrupt as _interrupt
 from . import output as _io
-from ._common import CLIError
+from ._common import CLIError, print_notes
 
 # Each command's one-line help. Its module (`_cli/<name>.py`, with NAME, DESCRIPTION,
 # add_arguments(parser) and run(args) -> int) is imported only when the command is chosen, so
@@ -160,6 +160,8 @@ def main(argv=None) -> int:
                 code = int(args._run(args) or 0)
                 if code:
                     tx.abort()
+        if not code:
+            print_notes(args)
         sys.stdout.write(paths.getvalue())
         sys.stdout.flush()
         return code

@@ -1,6 +1,7 @@
 """What every `piest` command shares: errors, output folders, common options."""
 
 import argparse
+import sys
 
 
 class CLIError(Exception):
@@ -94,16 +95,19 @@ def float_list(text: str) -> list[float]:
     return vals
 
 
-def columns_arg(count: int, example: str):
-    """A parser of `count` distinct comma-separated column names (matched as the loader does)."""
+def columns_arg(count, example: str):
+    """A parser of `count` (an int, or a tuple of the counts allowed) distinct comma-separated
+    column names, matched as the loader does."""
+    counts = (count,) if isinstance(count, int) else tuple(count)
+    how_many = " or ".join(str(c) for c in sorted(counts))
 
     def parse(text: str) -> tuple[str, ...]:
         from .._data.columns import base_name
 
         names = tuple(c.strip() for c in text.split(","))
-        if len(names) != count or not all(names) or len({base_name(n) for n in names}) != count:
+        if len(names) not in counts or not all(names) or len({base_name(n) for n in names}) != len(names):
             raise argparse.ArgumentTypeError(
-                f"expected {count} distinct column names such as {example}, got {text!r}"
+                f"expected {how_many} distinct column names such as {example}, got {text!r}"
             )
         return names
 
@@ -111,12 +115,67 @@ def columns_arg(count: int, example: str):
 
 
 def add_record_options(p: argparse.ArgumentParser) -> None:
-    """--columns and --resample, for every command that reads a (t, u, y) record."""
+    """--columns, --resample and --segment, for every command that reads a (t, u, y) record."""
     p.add_argument(
-        "--columns", type=columns_arg(3, "time_s,voltage_V,displacement_um"), metavar="TIME,INPUT,OUTPUT",
+        "--columns", type=columns_arg((3, 2), "time_s,voltage_V,displacement_um or H,B"),
+        metavar="[TIME,]INPUT,OUTPUT",
         help="the data file's names of its time, input and output columns (default t,u,y; "
-        "names match without case or a unit in brackets: `t [s]` is t)",
+        "names match without case or a unit in brackets: `t [s]` is t); two names for data "
+        "without time, whose samples are then counted (step 1)",
     )
     p.add_argument(
         "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
     )
+    p.add_argument(
+        "--segment", type=finite_float, metavar="LABEL",
+        help="of a record with a `segment` column (several loops or reversal curves), use the "
+        "segment with this label",
+    )
+
+
+def read_record(path, args, *, validation: bool = False):
+    """The record `path` as the options of `add_record_options` ask: one segment of it, and a
+    note on stderr when its time counts samples.
+
+    **Arguments:** `path`, the data file; `args`, the parsed options; `validation`, the file is
+    a `--validate` record, to which `--segment` (a label of the data file) does not apply.
+
+    **Returns:** the [`Record`][piest_jax.Record]. Raises `CLIError` for a record of several
+    segments without `--segment`: the plays' memory would run on from one segment into the next.
+    """
+    from .._data.record import load_record
+
+    rec = load_record(path, resample=args.resample, columns=args.columns)
+    if args.segment is not None and not validation:
+        rec = rec.select_segment(args.segment)
+    elif rec.n_segments > 1:
+        labels = ", ".join(f"{s.segment[0]:g}" for s in rec.segments())
+        choose = "give a record of one segment to --validate" if validation else "choose one with --segment LABEL"
+        raise CLIError(
+            f"{path} holds {rec.n_segments} segments (labels {labels}): their boundaries are not "
+            f"continuous in time, and the plays' memory would run on from one into the next; {choose}"
+        )
+    if rec.time_is_index:
+        note(args, f"{path} has no time in seconds: t counts samples (step 1), so the times, "
+             "time constants and rates in the results are in samples")
+    return rec
+
+
+def record_fields(rec, args) -> dict:
+    """What a command's JSON says of how its record was read: `time_unit` "sample" when the
+    time counts samples, the `segment` chosen with --segment; nothing for an ordinary record."""
+    fields = {"time_unit": "sample"} if rec.time_is_index else {}
+    if getattr(args, "segment", None) is not None:
+        fields["segment"] = args.segment
+    return fields
+
+
+def note(args, text: str) -> None:
+    """A note for stderr, printed once the command has succeeded (an error stays one line)."""
+    args.__dict__.setdefault("_notes", []).append(text)
+
+
+def print_notes(args) -> None:
+    """The notes `note` kept, one line each."""
+    for text in getattr(args, "_notes", ()):
+        print(f"piest {args.command}: note: {text}", file=sys.stderr)

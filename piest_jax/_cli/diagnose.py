@@ -1,12 +1,11 @@
 """`piest diagnose`: find where a PI model and the data disagree, name the missing effects."""
 
-from .._data.record import load_record
 from .._diagnosis.effects import EFFECT, EFFECTS, RECORD_SPECIFIC
 from .._diagnosis.figure import diagnosis_figure
 from .._report import json_text
 from . import memory
 from . import output as _io
-from ._common import CLIError, add_output_options, add_record_options
+from ._common import CLIError, add_output_options, add_record_options, read_record, record_fields
 
 NAME = "diagnose"
 DESCRIPTION = """\
@@ -74,9 +73,8 @@ def run(args) -> int:
     if args.max_effects < 1:
         raise CLIError(f"--max-effects must be at least 1, got {args.max_effects}")
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    opts = dict(resample=args.resample, columns=args.columns)
-    rec = load_record(args.data, **opts)
-    val = load_record(args.validate, **opts) if args.validate else None
+    rec = read_record(args.data, args)
+    val = read_record(args.validate, args, validation=True) if args.validate else None
     # Refuse unusable records before the (long) search, not after it.
     n = rec.n_samples + (0 if val is None else val.n_samples)
     memory.require(memory.diagnose_bytes(n), f"{args.data}{' and ' + args.validate if val else ''} "
@@ -89,6 +87,7 @@ def run(args) -> int:
     fig = diagnosis_figure(rep)
     del rep["_arrays"]
     rep["data"] = str(args.data)
+    rep.update(record_fields(rec, args))
     if val is not None:
         rep["validation"]["data"] = str(args.validate)
     written = [_io.write_json(out / "report.json", rep)]

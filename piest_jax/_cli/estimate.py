@@ -3,11 +3,19 @@
 
 import numpy as np
 
-from .._data.record import load_record
 from .._estimation.online_figure import online_estimate_figure
 from . import memory
 from . import output as _io
-from ._common import CLIError, add_output_options, add_record_options, float_list, positive_float, positive_int
+from ._common import (
+    CLIError,
+    add_output_options,
+    add_record_options,
+    float_list,
+    positive_float,
+    positive_int,
+    read_record,
+    record_fields,
+)
 
 NAME = "estimate"
 DESCRIPTION = """\
@@ -116,7 +124,7 @@ def run(args) -> int:
         raise CLIError(f"--forgetting must be in (0, 1], got {args.forgetting}")
     start = _start(args.start)
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    rec = load_record(args.data, resample=args.resample, columns=args.columns)
+    rec = read_record(args.data, args)
     r, x0 = _thresholds(args, rec)
     if args.estimator == "rls":
         est = pj.ContinuousRLS(args.P0, rec.dt, normalisation=args.normalisation)
@@ -152,6 +160,7 @@ def run(args) -> int:
                 t=t0 + res.window_t, level=res.pe_levels, exciting=res.exciting,
                 all_exciting=bool(np.all(np.asarray(res.exciting)))),
         certificate=dict(t=t0 + res.bound_t, gram_bound=res.gram_bound),
+        **record_fields(rec, args),
     )
     written = [_io.write_json(out / "estimate.json", report)]
     fig = online_estimate_figure(res, title=args.estimator, t0=t0)

@@ -5,7 +5,6 @@ import sys
 
 import numpy as np
 
-from .._data.record import load_record
 from .._identification.covariance import table as parameter_table
 from .._identification.figures import fit_figure
 from .._identification.fit import SOLVERS
@@ -21,6 +20,8 @@ from ._common import (
     float_list,
     positive_float,
     positive_int,
+    read_record,
+    record_fields,
     seed,
 )
 
@@ -187,8 +188,8 @@ def run(args) -> int:
         raise _as_options(e) from None
     names = OUTPUTS if args.validate else OUTPUTS[:3]
     out = _io.check_outputs(args.out, names, args.force)
-    rec = load_record(args.data, resample=args.resample, columns=args.columns)
-    val = load_record(args.validate, resample=args.resample, columns=args.columns) if args.validate else None
+    rec = read_record(args.data, args)
+    val = read_record(args.validate, args, validation=True) if args.validate else None
     try:
         p = plan(rec, fit_from=args.fit_from, **options)
     except ValueError as e:
@@ -205,7 +206,7 @@ def run(args) -> int:
     )
     f = result.fit
     table = parameter_table(f)
-    written = [_io.write_json(out / "fit.json", result.to_json()),
+    written = [_io.write_json(out / "fit.json", {**result.to_json(), **record_fields(rec, args)}),
                _io.write_text(out / "fit.md", _markdown(result, table)),
                _io.save_figure(fit_figure(rec, np.asarray(f(rec.u)), title="fit", mask=result.mask),
                                out / "fit.png", dpi=110)]

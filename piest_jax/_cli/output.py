@@ -9,6 +9,7 @@ output folder holds either the previous complete set of results or the new compl
 
 import contextlib
 import contextvars
+import errno
 import os
 import signal
 import tempfile
@@ -373,7 +374,9 @@ def check_outputs(out_dir, names, force: bool) -> Path:
         os.close(fd)
         os.unlink(probe)
     except OSError as e:
-        raise OSError(f"--out {out}: cannot write there ({e.strerror or e})") from None
+        # The folder exists, so "No such file or directory" (what /proc answers) would mislead.
+        why = "it takes no new files" if e.errno == errno.ENOENT else (e.strerror or e)
+        raise OSError(f"--out {out}: cannot write there ({why})") from None
     if tx is not None:
         tx._stale.extend(out / n for n in others if (out / n).exists())
     _remove_debris(out, names + others)

@@ -2,7 +2,6 @@
 
 import numpy as np
 
-from .._data.record import load_record
 from .._excitation import signals as _signals
 from .._operators.figure import loop_figure
 from .._operators.pi import PIOperator
@@ -16,6 +15,8 @@ from ._common import (
     float_list,
     positive_float,
     positive_int,
+    read_record,
+    record_fields,
 )
 
 NAME = "simulate"
@@ -84,9 +85,10 @@ def _input(args):
             if getattr(args, name) is not None:
                 raise CLIError(f"--{name} describes a generated input; --input csv takes t and u "
                                f"from {args.csv}")
-        rec = load_record(args.csv, resample=args.resample, columns=args.columns)
-        return rec.t, rec.u, {"kind": "csv", "file": str(args.csv)}
-    for given, name in ((args.csv, "--csv"), (args.columns, "--columns"), (args.resample, "--resample")):
+        rec = read_record(args.csv, args)
+        return rec.t, rec.u, {"kind": "csv", "file": str(args.csv), **record_fields(rec, args)}
+    for given, name in ((args.csv, "--csv"), (args.columns, "--columns"), (args.resample, "--resample"),
+                        (args.segment is not None, "--segment")):
         if given:
             raise CLIError(f"{name} is only used with --input csv, not --input {args.input}")
     for name, value in SHAPE_DEFAULTS.items():

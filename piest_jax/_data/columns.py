@@ -4,13 +4,22 @@ quoted fields, and what is not a number.
 - A header cell is matched by its name without quotes, case or a trailing unit in brackets or
   parentheses: `t [s]`, `"T (s)"` and `t` all name the column `t`.
 - `columns=("time_s", "voltage_V", "displacement_um")` names the file's columns that hold t, u
-  and y (matched the same way); the CLI's `--columns TIME,INPUT,OUTPUT` passes it.
+  and y (matched the same way); the CLI's `--columns TIME,INPUT,OUTPUT` passes it. Two names
+  (`columns=("H", "B")`) name the input and output of data without a time column.
+- Data without time (quasi-static sweeps, B-H loops) count samples instead: a record whose time
+  column is absent, or is named as a sample index (`INDEX_NAMES`), has `time_is_index` set.
+- A column named `segment` labels the segments of a record made of several runs (loops,
+  reversal curves); the rows of one segment are contiguous.
 - A cell is a number when it is an ASCII decimal or exponent literal, optionally in quotes (as
   spreadsheet exports write every field); `1_000` (Python's digit grouping) and digits of other
   scripts (`١٢`) are not, although Python's `float` reads both.
 """
 
 import re
+
+# Names of a time column that counts samples rather than seconds.
+INDEX_NAMES = ("index", "idx", "sample", "n", "k", "i")
+SEGMENT = "segment"
 
 _UNIT = re.compile(r"\s*(\[[^\[\]]*\]|\([^()]*\))\s*$")
 _NUMBER = re.compile(r"[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|inf(inity)?|nan)", re.IGNORECASE | re.ASCII)
@@ -39,22 +48,25 @@ def to_number(cell: str) -> float | None:
     return float(text)
 
 
-def column_names(columns, source: str) -> tuple[str, ...] | None:
-    """The three base names `columns` gives for t, u and y (None: the file's own `t,u,y`).
+def column_names(columns, source: str) -> tuple[str | None, str, str] | None:
+    """The base names `columns` gives for t, u and y (None: the file's own).
 
-    **Arguments:** `columns`, None, a sequence of three names, or one string `"A,B,C"`;
-    `source`, for the message.
+    **Arguments:** `columns`, None, a sequence of three names (time, input, output) or of two
+    (input, output: data without time), or one string `"A,B,C"` / `"A,B"`; `source`, for the
+    message.
 
-    **Returns:** the base names. Raises `ValueError` for anything but three distinct names.
+    **Returns:** the base names, the time's None when two are given. Raises `ValueError` for
+    anything but two or three distinct names.
     """
     if columns is None:
         return None
     if isinstance(columns, str):
         columns = columns.split(",")
     names = tuple(base_name(str(c)) for c in columns)
-    if len(names) != 3 or not all(names) or len(set(names)) != 3:
+    if len(names) not in (2, 3) or not all(names) or len(set(names)) != len(names):
         raise ValueError(
             f"{source}: columns= needs three distinct names, for time, input and output "
-            f"(e.g. time_s,voltage_V,displacement_um); got {list(columns)!r}"
+            f"(e.g. time_s,voltage_V,displacement_um), or two for data without time (e.g. H,B); "
+            f"got {list(columns)!r}"
         )
-    return names
+    return names if len(names) == 3 else (None, *names)

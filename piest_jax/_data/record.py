@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .columns import base_name, column_names, to_number
+from .columns import INDEX_NAMES, SEGMENT, base_name, column_names, to_number
 
 MIN_SAMPLES = 8
 _DELIMITERS = (",", ";", "\t")
@@ -29,6 +29,11 @@ class Record:
     - `t`, `u`, `y`: the three required columns.
     - `extras`: any further columns by name (e.g. `desired`), each (T,).
     - `source`: where the record came from (a path or a description).
+    - `segment`: None, or (T,) labels of the segments the record is made of (several loops or
+      reversal curves measured one after another); each segment's rows are contiguous and its
+      time is uniform, while time may restart between segments.
+    - `time_is_index`: `t` counts samples (data without a time column, or whose time column is a
+      sample index): its step is 1 and times derived from it are in samples, not seconds.
     """
 
     t: np.ndarray
@@ -36,14 +41,46 @@ class Record:
     y: np.ndarray
     extras: dict = dataclasses.field(default_factory=dict)
     source: str = "<memory>"
+    segment: np.ndarray | None = None
+    time_is_index: bool = False
 
     def __post_init__(self):
         n = len(self.t)
-        for name, col in [("u", self.u), ("y", self.y), *self.extras.items()]:
+        cols = [("u", self.u), ("y", self.y), *self.extras.items()]
+        if self.segment is not None:
+            cols.append((SEGMENT, self.segment))
+        for name, col in cols:
             if np.shape(col) != (n,):
                 raise DataError(
                     f"{self.source}: column `{name}` has shape {np.shape(col)}, expected ({n},)"
                 )
+
+    @property
+    def n_segments(self) -> int:
+        """The number of segments (1 for a record without a `segment` column)."""
+        return 1 if self.segment is None else len(_segment_bounds(self.segment, self.source))
+
+    def segments(self) -> list["Record"]:
+        """The record's segments, in order, each a record of its own (one without segments:
+        `[self]`)."""
+        if self.segment is None:
+            return [self]
+        return [self.slice(a, b) for a, b in _segment_bounds(self.segment, self.source)]
+
+    def select_segment(self, label) -> "Record":
+        """The segment labelled `label` as a record of its own.
+
+        **Arguments:** `label`, a value of the `segment` column.
+
+        **Returns:** the [`Record`][] of its rows. Raises [`DataError`][] naming the labels there
+        are when no segment has this label (or the record has no segments).
+        """
+        if self.segment is None:
+            _fail(self.source, f"no `{SEGMENT}` column to select segment {_label(label)} from")
+        for a, b in _segment_bounds(self.segment, self.source):
+            if self.segment[a] == label:
+                return self.slice(a, b)
+        _fail(self.source, f"no segment labelled {_label(label)}; the labels are {_labels(self.segment)}")
 
     @property
     def n_samples(self) -> int:
@@ -67,22 +104,31 @@ class Record:
         min_samples: int = MIN_SAMPLES,
         dt_tolerance: float = 1e-3,
         resample: bool = False,
+        segment=None,
+        time_is_index: bool = False,
     ) -> "Record":
         """A record from arrays, checked as [`load_record`][] checks a file.
 
         **Arguments:**
 
-        - `t`, `u`, `y`: one-dimensional sequences of equal length (time strictly increasing).
-        - `extras`: further columns by name, each as long as `t`.
+        - `t`, `u`, `y`: one-dimensional sequences of equal length (time strictly increasing);
+          `t` None for data without time (the sample number is used, `time_is_index` set).
+        - `extras`: further columns by name, each as long as `u`.
         - `source`: the description that error messages and `Record.source` carry.
         - `min_samples`, `dt_tolerance`, `resample`: as for [`load_record`][].
+        - `segment`: None, or segment labels, one per sample (see [`Record`][]).
+        - `time_is_index`: `t` is a sample index, not a time in seconds.
 
         **Returns:** a [`Record`][] of float64 copies. Raises [`DataError`][] naming the problem:
         a column that is not one-dimensional, not numeric, of another length, NaN or infinite,
-        too few samples, time not strictly increasing, non-uniform sampling.
+        too few samples, time not strictly increasing, non-uniform sampling, a segment whose
+        rows are not contiguous.
         """
+        if t is None:
+            t, time_is_index = np.arange(np.shape(u)[0] if np.ndim(u) else 0), True
+        more = [] if segment is None else [(SEGMENT, segment)]
         cols = {}
-        for name, col in [("t", t), ("u", u), ("y", y), *(extras or {}).items()]:
+        for name, col in [("t", t), ("u", u), ("y", y), *(extras or {}).items(), *more]:
             arr = np.asarray(col)
             if arr.ndim != 1:
                 _fail(source, f"column `{name}` must be one-dimensional, got shape {arr.shape}")
@@ -96,36 +142,97 @@ class Record:
             if len(col) != n:
                 _fail(source, f"column `{name}` has {len(col)} samples but `t` has {n}")
         t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
+        seg = cols.pop(SEGMENT) if segment is not None else None
         opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample)
-        t, u, y, extras = _validate(t, u, y, cols, source, None, **opts)
-        return cls(t, u, y, extras, source)
+        return _record(t, u, y, cols, source, None, seg, time_is_index, **opts)
 
     @classmethod
-    def from_dataframe(cls, df, *, source: str = "<DataFrame>", **kwargs) -> "Record":
-        """A record from a pandas `DataFrame` with columns `t`, `u`, `y` (any case).
+    def from_dataframe(cls, df, *, columns=None, source: str = "<DataFrame>", **kwargs) -> "Record":
+        """A record from a pandas `DataFrame` with columns `t`, `u`, `y` (any case, units in
+        brackets ignored), chosen as [`load_record`][] chooses a file's.
 
-        **Arguments:** `df`, the frame (further numeric columns are kept as `extras`); `source`
-        and `kwargs` as for [`Record.from_arrays`][].
+        **Arguments:** `df`, the frame (further numeric columns are kept as `extras`, a
+        `segment` column as the segment labels); `columns`, the frame's names of its time,
+        input and output columns, as for [`load_record`][]; `source` and `kwargs` as for
+        [`Record.from_arrays`][].
 
         **Returns:** a [`Record`][]. Raises [`DataError`][] naming missing or duplicated columns
         or any problem [`Record.from_arrays`][] finds.
         """
-        names = [str(c).strip().lower() for c in df.columns]
+        names = [base_name(str(c)) for c in df.columns]
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
             _fail(source, f"duplicated column name(s): {', '.join(dupes)}")
-        missing = [c for c in ("t", "u", "y") if c not in names]
-        if missing:
-            _fail(source, f"missing column(s) {', '.join(missing)}: the frame has {', '.join(names)}")
+        time, un, yn = _pick(names, column_names(columns, source), source, "the frame")
         cols = {n: df[c].to_numpy() for n, c in zip(names, df.columns)}
-        t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
-        return cls.from_arrays(t, u, y, extras=cols, source=source, **kwargs)
+        t = cols.pop(time) if time is not None else None
+        u, y = cols.pop(un), cols.pop(yn)
+        seg = cols.pop(SEGMENT, None)
+        # A column of the frame named t, u or y that was not chosen would shadow the chosen one.
+        extras = {k: v for k, v in cols.items() if k not in ("t", "u", "y")}
+        return cls.from_arrays(t, u, y, extras=extras, source=source, segment=seg,
+                               time_is_index=time is None or time in INDEX_NAMES, **kwargs)
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Record":
         """The samples `start:stop` as a new record (time stamps kept)."""
         sl = slice(start, stop)
         extras = {k: v[sl] for k, v in self.extras.items()}
-        return Record(self.t[sl], self.u[sl], self.y[sl], extras, self.source)
+        seg = None if self.segment is None else self.segment[sl]
+        return Record(self.t[sl], self.u[sl], self.y[sl], extras, self.source, seg, self.time_is_index)
+
+
+def _pick(names, given, source, where, row=None, hint=""):
+    """The (time, input, output) column names among `names`, as given or by the rules of
+    `columns.py`: t, u, y; or u and y with no time, or with a sample-index column."""
+    if given is not None:
+        missing = [n for n in given if n is not None and n not in names]
+        if missing:
+            _fail(source, f"missing column(s) {', '.join(missing)}: {where} has {', '.join(names)}", row)
+        return given
+    if {"t", "u", "y"} <= set(names):
+        return "t", "u", "y"
+    if {"u", "y"} <= set(names):
+        others = [n for n in names if n not in ("u", "y", SEGMENT)]
+        index = [n for n in others if n in INDEX_NAMES]
+        if len(index) == len(others) <= 1:
+            return (index[0] if index else None), "u", "y"
+        _fail(
+            source,
+            f"no time column `t`: {where} has {', '.join(names)}; name its time, input and output "
+            f"with columns= (CLI: --columns TIME,INPUT,OUTPUT), or keep only u, y, a sample index "
+            f"({'/'.join(INDEX_NAMES)}) and `{SEGMENT}` for data without time",
+            row,
+        )
+    missing = [c for c in ("t", "u", "y") if c not in names]
+    _fail(source, f"missing column(s) {', '.join(missing)}: {where} has {', '.join(names)}{hint}", row)
+
+
+def _segment_bounds(segment, source, rows=None):
+    """(start, stop) of each run of equal labels; a label that comes back later is refused."""
+    starts = np.flatnonzero(np.r_[True, segment[1:] != segment[:-1]])
+    bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(segment)]))
+    seen = {}
+    for a, _ in bounds:
+        label = segment[a]
+        if label in seen:
+            _fail(source, f"segment {label:g} starts again after other segments (it began at "
+                  f"{_where(seen[label], rows)}); the rows of one segment must be together",
+                  rows[a] if rows is not None else None)
+        seen[label] = a
+    return bounds
+
+
+def _where(k, rows):
+    return f"row {rows[k]}" if rows is not None else f"sample {k}"
+
+
+def _label(v):
+    return f"{v:g}" if isinstance(v, int | float | np.number) else repr(v)
+
+
+def _labels(segment):
+    labels = segment[np.r_[True, segment[1:] != segment[:-1]]]
+    return ", ".join(_label(v) for v in labels)
 
 
 def _fail(source, msg, row=None):
@@ -213,22 +320,53 @@ def _parse_rows(lines, start, delim, names, source, *, trailing=False):
     return np.asarray(values, dtype=np.float64), [i + 1 for i, _ in body]
 
 
-def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resample):
-    for name, col in [("t", t), ("u", u), ("y", y), *extras.items()]:
+def _record(t, u, y, extras, source, rows, segment, time_is_index, **opts):
+    """A checked [`Record`][]: each segment validated (and resampled) on its own."""
+    more = {} if segment is None else {SEGMENT: segment}
+    _finite({"t": t, "u": u, "y": y, **extras, **more}, source, rows)
+    if segment is None:
+        t, u, y, extras = _validate(t, u, y, extras, source, rows, **opts)
+        return Record(t, u, y, extras, source, None, time_is_index)
+    parts = []
+    bounds = _segment_bounds(segment, source, rows)
+    # One step for the whole record: the median over the steps inside the segments.
+    steps = np.concatenate([np.diff(t[a:b]) for a, b in bounds])
+    step = float(np.median(steps)) if steps.size else None
+    for a, b in bounds:
+        label = f"segment {segment[a]:g}"
+        cut = lambda c: c[a:b]  # noqa: E731
+        parts.append(_validate(cut(t), cut(u), cut(y), {k: cut(v) for k, v in extras.items()},
+                               source, None if rows is None else rows[a:b], step=step,
+                               part=f"{label} ({_where(a, rows)})", **opts))
+        parts[-1] = (*parts[-1], np.full(len(parts[-1][0]), segment[a]))
+    t, u, y, seg = (np.concatenate([p[i] for p in parts]) for i in (0, 1, 2, 4))
+    extras = {k: np.concatenate([p[3][k] for p in parts]) for k in extras}
+    return Record(t, u, y, extras, source, seg, time_is_index)
+
+
+def _finite(cols, source, rows):
+    for name, col in cols.items():
         bad = ~np.isfinite(col)
         if bad.any():
             k = int(np.argmax(bad))
             row = rows[k] if rows is not None else None
             _fail(source, f"column `{name}` holds {col[k]} (NaN or inf are not data)", row)
+
+
+def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resample, step=None, part=None):
+    """Time and length checked (and resampled when asked); `step`, the step to hold time to
+    (default: its median); `part`, the segment's name for messages."""
     if len(t) < min_samples:
-        _fail(source, f"only {len(t)} sample{'s' * (len(t) != 1)}; at least {min_samples} are needed")
+        s = "s" * (len(t) != 1)
+        head = "only" if part is None else f"{part} has only"
+        _fail(source, f"{head} {len(t)} sample{s}; at least {min_samples} are needed")
     dt = np.diff(t)
     if np.any(dt <= 0):
         k = int(np.argmax(dt <= 0))
         row = rows[k + 1] if rows is not None else None
         what = "repeats" if dt[k] == 0 else "goes backwards"
         _fail(source, f"time is not strictly increasing: t = {float(t[k + 1]):.10g} {what}", row)
-    step = float(np.median(dt))
+    step = float(np.median(dt)) if step is None else step
     dev = np.abs(dt - step) / step
     if np.any(dev > dt_tolerance):
         if not resample:
@@ -271,7 +409,10 @@ def load_record(
     Lines before the header (instrument preamble) and lines starting with `#` are skipped; extra
     columns are kept in `Record.extras`. Header names match without case, quotes or a unit in
     brackets or parentheses (`t [s]` is `t`); quoted numbers are read; `1_000` and digits of
-    other scripts are not numbers.
+    other scripts are not numbers. Data without time (a header of `u,y` alone, or with a sample
+    index such as `n`) count samples: `t` is the index, `Record.time_is_index` is set. A
+    `segment` column splits the record into segments (loops, reversal curves), each checked on
+    its own (see `docs/data.md`).
 
     **Arguments:**
 
@@ -281,11 +422,13 @@ def load_record(
     - `resample`: interpolate linearly onto a uniform grid instead of rejecting non-uniform time.
     - `columns`: the names of the file's time, input and output columns, e.g.
       `("time_s", "voltage_V", "displacement_um")` or `"time_s,voltage_V,displacement_um"`
-      (default: `t`, `u`, `y`); they become the record's `t`, `u`, `y`.
+      (default: `t`, `u`, `y`); they become the record's `t`, `u`, `y`. Two names (`"H,B"`)
+      name the input and output of data without time.
 
     **Returns:** a [`Record`][]. Raises [`DataError`][] (a `ValueError`) naming the file, the row
     where it applies, and the problem: missing columns, non-numeric cells, NaN/inf, too few
-    samples, time not strictly increasing, non-uniform sampling, mismatched lengths.
+    samples, time not strictly increasing, non-uniform sampling, mismatched lengths, a segment
+    whose rows are not together.
     """
     path, source = _existing(path)
     names = column_names(columns, source)
@@ -294,13 +437,23 @@ def load_record(
         return _load_npz(path, source, names, **opts)
     if names is None:
         hint = "; or name the file's columns with columns= (CLI: --columns TIME,INPUT,OUTPUT)"
-        cols, rows = _read_csv(path, source, ("t", "u", "y"), hint)
+        cols, rows, names = _read_csv(path, source, ("t", "u", "y"), hint, quasi=True)
     else:
-        cols, rows = _read_csv(path, source, names)
-        cols = _renamed(cols, names)
-    t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
-    t, u, y, extras = _validate(t, u, y, cols, source, rows, **opts)
-    return Record(t, u, y, extras, source)
+        cols, rows, _ = _read_csv(path, source, tuple(n for n in names if n is not None))
+    return _chosen(cols, names, source, rows, **opts)
+
+
+def _chosen(cols, names, source, rows, **opts):
+    """The record of the columns `names` (time or None, input, output) of `cols`."""
+    time = names[0]
+    seg = cols.pop(SEGMENT, None) if SEGMENT not in names else None
+    chosen = {k: cols.pop(n) for k, n in zip(("t", "u", "y"), names) if n is not None}
+    if time is None:
+        chosen["t"] = np.arange(len(chosen["u"]), dtype=np.float64)
+    # A column of the file named t, u or y that was not chosen would shadow the chosen one.
+    extras = {k: v for k, v in cols.items() if k not in ("t", "u", "y")}
+    indexed = time is None or time in INDEX_NAMES
+    return _record(chosen["t"], chosen["u"], chosen["y"], extras, source, rows, seg, indexed, **opts)
 
 
 def _existing(path):
@@ -316,31 +469,30 @@ def _existing(path):
     return path, source
 
 
-def _renamed(cols, names):
-    """The columns `names` as t, u, y (in that order); the others keep their names."""
-    chosen = {k: cols.pop(n) for k, n in zip(("t", "u", "y"), names)}
-    # A column of the file named t, u or y that was not chosen would shadow the chosen one.
-    return chosen | {k: v for k, v in cols.items() if k not in chosen}
-
-
-def _read_csv(path, source, required, hint=""):
-    """Columns by (lower-case) name and the file's line number of each data row."""
+def _read_csv(path, source, required, hint="", quasi=False):
+    """Columns by (lower-case) name, the file's line number of each data row, and (with `quasi`)
+    the record's (time, input, output) names: a header with u and y but no t is taken too."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         _fail(source, "is not a text (UTF-8) CSV file")
     lines = text.splitlines()
     del text
-    h, delim, names = _find_header(lines, source, required, hint)
+    found = None
+    if quasi:
+        found = next((c for c in _header_candidates(lines) if set(required) <= set(c[2])), None)
+        found = found or next((c for c in _header_candidates(lines) if {"u", "y"} <= set(c[2])), None)
+    h, delim, names = found or _find_header(lines, source, required, hint)
+    chosen = _pick(names, None, source, "the header", h + 1, hint) if quasi else None
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         _fail(source, f"duplicated column name(s) in the header: {', '.join(dupes)}", h + 1)
     # A delimiter at the end of every line (common in instrument exports) is not a column.
     trailing = lines[h].rstrip(" \r\n").endswith(delim)
-    if trailing and len(names) > len(required) and names[-1] == "":
+    if trailing and len(names) > 1 and names[-1] == "":
         names = names[:-1]
     data, rows = _parse_rows(lines, h + 1, delim, names, source, trailing=trailing)
-    return {n: data[:, j].copy() for j, n in enumerate(names)}, rows
+    return {n: data[:, j].copy() for j, n in enumerate(names)}, rows, chosen
 
 
 def load_columns(path, required=("t",), *, min_samples: int = 2, time: str = "t") -> dict:
@@ -363,7 +515,7 @@ def load_columns(path, required=("t",), *, min_samples: int = 2, time: str = "t"
     path, source = _existing(path)
     required = tuple(base_name(r) for r in required)
     time = base_name(time)
-    cols, rows = _read_csv(path, source, required)
+    cols, rows, _ = _read_csv(path, source, required)
     for name in required:
         bad = ~np.isfinite(cols[name])
         if bad.any():
@@ -389,34 +541,35 @@ def _load_npz(path, source, names=None, **opts):
             arrays = {k: np.asarray(z[k]) for k in z.files}
     except Exception as e:  # a corrupt archive can raise many kinds of error
         _fail(source, f"cannot be read as NPZ ({type(e).__name__}: {e})")
-    if names is not None:
-        byname = {base_name(k): k for k in arrays}
-        missing = [n for n in names if n not in byname]
+    byname = {base_name(k): k for k in arrays}
+    if names is None:
+        if not {"u", "y"} <= set(byname) or "t" in byname:
+            missing = [k for k in ("t", "u", "y") if k not in arrays]
+            if missing:
+                _fail(source, f"missing array(s) {', '.join(missing)}; found {sorted(arrays)}")
+        names = _pick(list(byname), None, source, "the archive")
+    else:
+        missing = [n for n in names if n is not None and n not in byname]
         if missing:
             _fail(source, f"missing array(s) {', '.join(missing)}; found {sorted(arrays)}")
-        chosen = {k: arrays.pop(byname[n]) for k, n in zip(("t", "u", "y"), names)}
-        arrays = chosen | {k: v for k, v in arrays.items() if k not in chosen}
-    missing = [k for k in ("t", "u", "y") if k not in arrays]
-    if missing:
-        _fail(source, f"missing array(s) {', '.join(missing)}; found {sorted(arrays)}")
+    used = {byname[n] for n in names if n is not None}
     cols = {}
     for k, v in arrays.items():
         if v.ndim != 1:
-            if k in ("t", "u", "y"):
+            if k in used:
                 _fail(source, f"array `{k}` must be one-dimensional, got shape {v.shape}")
             continue
         if np.issubdtype(v.dtype, np.complexfloating):
             _fail(source, f"array `{k}` is complex (dtype {v.dtype}); store real values")
         if not np.issubdtype(v.dtype, np.number):
             _fail(source, f"array `{k}` is not numeric (dtype {v.dtype})")
-        cols[k] = v.astype(np.float64)
-    n = len(cols["t"])
+        cols[base_name(k)] = v.astype(np.float64)
+    first = names[0] if names[0] is not None else names[1]
+    n = len(cols[first])
     for k, v in cols.items():
         if len(v) != n:
-            _fail(source, f"array `{k}` has {len(v)} samples but `t` has {n}")
-    t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
-    t, u, y, extras = _validate(t, u, y, cols, source, None, **opts)
-    return Record(t, u, y, extras, source)
+            _fail(source, f"array `{k}` has {len(v)} samples but `{first}` has {n}")
+    return _chosen(cols, names, source, None, **opts)
 
 
 def datasets() -> list[str]:

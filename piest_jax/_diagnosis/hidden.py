@@ -12,6 +12,7 @@ import types
 import jax
 import numpy as np
 
+from .. import _checks
 from .._data.record import Record
 from .basis import N_PLAYS, THRESHOLDS, plays
 from .effects import chain, check_names
@@ -63,7 +64,7 @@ def generate(effects=(), *, key, n_samples=2000, noise=None):
     parameters, and `noise_std` (the true noise std in the record's units).
     """
     check_names(effects)
-    rng = _rng(key)
+    rng = _rng(_checks.prng_key(key))
     dt = 1.0 / rng.choice([200.0, 500.0, 1000.0])
     t, u, f0 = _input(rng, n_samples, dt)
     amp = np.abs(u).max()

@@ -101,10 +101,12 @@ def check_record(rec: Record) -> None:
     if du <= 1e-9 * np.max(np.abs(rec.u)):
         raise DataError(f"{src}: no excitation: the input u is constant, nothing can be identified")
     un = (rec.u - rec.u.min()) / du
-    if _reversals(un) < 2:
+    turns = _reversals(un)
+    if turns < 2:
+        how = "never reverses direction" if turns == 0 else "reverses direction only once"
         raise DataError(
-            f"{src}: no excitation: the input never reverses direction, so no hysteresis loop "
-            "is traced; record at least one rise and fall"
+            f"{src}: no excitation: the input {how}, so no hysteresis loop is traced; record at "
+            "least one rise and fall after the first sweep"
         )
     if np.ptp(rec.y) <= 1e-9 * np.max(np.abs(rec.y)):
         raise DataError(f"{src}: constant output: y does not change, there is nothing to model")

@@ -136,6 +136,7 @@ def run_batch(
 
     **Returns:** a [`BatchStats`][].
     """
+    key = _checks.prng_key(key)
     inputs = _checks.as_float_array(inputs, "inputs")
     if inputs.ndim != 2 or inputs.shape[1] < 1:
         raise ValueError(f"`inputs` must be (B, T), one signal per member, got {inputs.shape}")

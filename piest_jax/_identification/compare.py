@@ -112,6 +112,9 @@ def compare(model, u, y=None, *, estimate_initial: bool = True, max_steps: int =
         if not (hasattr(u, "u") and hasattr(u, "y")):
             raise ValueError("give `u` and `y`, or a Record as `u`")
         u, y = u.u, u.y
+    if not _checks.is_whole(max_steps) or max_steps < 1:
+        raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
+    max_steps = int(max_steps)  # optimistix takes Python integers only
     m = _as_model(model)
     u = _checks.finite(_checks.signal(u, "u"), "u")
     y = _checks.finite(_checks.signal(y, "y"), "y")

@@ -467,6 +467,7 @@ def fit_pi(
     if not _checks.is_whole(max_steps) or max_steps < 1:
         raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
     max_steps = int(max_steps)  # optimistix takes Python integers only
+    key = None if key is None else _checks.prng_key(key)
     per_lag = 3 if fit_initial_states else 2
     _check_lags(n_lags, pad_lags, dt)
     if min_time_constant is not None and not (np.isfinite(min_time_constant) and min_time_constant > 0):

@@ -236,7 +236,8 @@ def fit_preisach(
         w = np.asarray(mask, dtype=np.float64)
         if w.shape != (T,) or not np.all(np.isfinite(w)) or np.any(w < 0):
             raise ValueError(f"`mask` must be (T,) = ({T},) finite non-negative weights")
-    K, M = int(n_widths), int(n_centres)
+    # Plain ints: a NumPy integer would reach jit as a traced shape.
+    K, M, n_blocks = int(n_widths), int(n_centres), int(n_blocks)
     used = int(np.count_nonzero(w))
     n_coef = int(triangle(K, M).sum()) + 1
     if used < n_coef:

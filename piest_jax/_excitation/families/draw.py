@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from ... import _checks
 from ..._custom_types import Signal, States, Thresholds
 from .family import log_uniform
 from .registry import FAMILIES, FAMILY, family_indices
@@ -39,7 +40,7 @@ def draw_input(key: PRNGKeyArray, family, t: Signal, r_max) -> Signal:
     (index,) = family_indices((family,))
     fam = FAMILY[FAMILIES[index]]
     t = _grid(t)
-    v = jax.random.uniform(key, (fam.n_uniforms(t.shape[0]),), t.dtype)
+    v = jax.random.uniform(_checks.prng_key(key), (fam.n_uniforms(t.shape[0]),), t.dtype)
     r = jnp.atleast_1d(jnp.asarray(r_max, t.dtype))
     return fam.input(v, t, r).astype(t.dtype)
 
@@ -73,7 +74,7 @@ def draw_thresholds(key: PRNGKeyArray, n: int, *, dtype=float) -> Thresholds:
     **Returns:** (n,) thresholds, increasing, the last one r_max.
     """
     n = _plays(n)
-    return _thresholds(jax.random.uniform(key, (n + 1,), jnp.dtype(dtype)), n)
+    return _thresholds(jax.random.uniform(_checks.prng_key(key), (n + 1,), jnp.dtype(dtype)), n)
 
 
 def draw_initial_states(key: PRNGKeyArray, r: Thresholds, u0) -> States:
@@ -86,12 +87,12 @@ def draw_initial_states(key: PRNGKeyArray, r: Thresholds, u0) -> States:
 
     **Returns:** (n,) initial states.
     """
-    return _states(jax.random.uniform(key, (r.shape[0] + 1,), r.dtype), r, u0)
+    return _states(jax.random.uniform(_checks.prng_key(key), (r.shape[0] + 1,), r.dtype), r, u0)
 
 
 def draw_weights(key: PRNGKeyArray, n: int, *, dtype=float) -> Float[Array, " n"]:
     """Random positive weights (n,), uniform on [0.5, 5] (the paper's are 1, 3 and 5)."""
-    return 0.5 + 4.5 * jax.random.uniform(key, (_plays(n),), jnp.dtype(dtype))
+    return 0.5 + 4.5 * jax.random.uniform(_checks.prng_key(key), (_plays(n),), jnp.dtype(dtype))
 
 
 def draw_case(key: PRNGKeyArray, family, t: Signal, n_plays: int):
@@ -115,7 +116,7 @@ def draw_case(key: PRNGKeyArray, family, t: Signal, n_plays: int):
     t = _grid(t)
     n = _plays(n_plays)
     m = fam.n_uniforms(t.shape[0])
-    v = jax.random.uniform(key, (m + 3 * n + 2,), t.dtype)
+    v = jax.random.uniform(_checks.prng_key(key), (m + 3 * n + 2,), t.dtype)
     r = _thresholds(v[m : m + n + 1], n)
     u = fam.input(v[:m], t, r).astype(t.dtype)
     x0 = _states(v[m + n + 1 : m + 2 * n + 2], r, u[0])
