@@ -97,6 +97,7 @@ _EXPORTS = {
     "Creep": ("._models.creep", "Creep"),
     "HysteresisModel": ("._models.composite", "HysteresisModel"),
     "Preisach": ("._models.preisach", "Preisach"),
+    "GeneralizedPI": ("._models.gpi", "GeneralizedPI"),
     "PreisachFit": ("._identification.fit_preisach", "PreisachFit"),
     "fit_preisach": ("._identification.fit_preisach", "fit_preisach"),
     "save_model": ("._identification.model_file", "save_model"),
@@ -224,6 +225,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.pi_model import PIModel as PIModel
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
+    from ._models.gpi import GeneralizedPI as GeneralizedPI
     from ._models.preisach import Preisach as Preisach
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
