@@ -98,6 +98,8 @@ _EXPORTS = {
     "HysteresisModel": ("._models.composite", "HysteresisModel"),
     "Preisach": ("._models.preisach", "Preisach"),
     "GeneralizedPI": ("._models.gpi", "GeneralizedPI"),
+    "GPIFit": ("._identification.fit_gpi", "GPIFit"),
+    "fit_gpi": ("._identification.fit_gpi", "fit_gpi"),
     "PreisachFit": ("._identification.fit_preisach", "PreisachFit"),
     "fit_preisach": ("._identification.fit_preisach", "fit_preisach"),
     "save_model": ("._identification.model_file", "save_model"),
@@ -214,6 +216,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.fit import initial_time_constants as initial_time_constants
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
+    from ._identification.fit_gpi import GPIFit as GPIFit
+    from ._identification.fit_gpi import fit_gpi as fit_gpi
     from ._identification.fit_preisach import PreisachFit as PreisachFit
     from ._identification.fit_preisach import fit_preisach as fit_preisach
     from ._identification.model_file import load_model as load_model
