@@ -10,6 +10,9 @@ import sys
 
 import numpy as np
 
+from .._identification.fit_gpi import fit_gpi
+from .._identification.fit_preisach import fit_preisach
+from .._identification.model_file import model_keys
 from . import memory
 from . import output as _io
 from ._common import CLIError, positive_int
@@ -76,9 +79,6 @@ def run(args, rec, val, mask, out) -> int:
     """Fit the model, then write fit.json, fit.md, fit.png (and validation.png)."""
     import jax
 
-    from .._identification.fit_gpi import fit_gpi
-    from .._identification.fit_preisach import fit_preisach
-    from .._identification.model_file import model_keys
     from .fit import _figure
 
     if args.model == "gpi":
