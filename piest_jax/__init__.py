@@ -106,6 +106,9 @@ _EXPORTS = {
     "Creep": ("._models.creep", "Creep"),
     "HysteresisModel": ("._models.composite", "HysteresisModel"),
     "Preisach": ("._models.preisach", "Preisach"),
+    "GeneralizedPI": ("._models.gpi", "GeneralizedPI"),
+    "GPIFit": ("._identification.fit_gpi", "GPIFit"),
+    "fit_gpi": ("._identification.fit_gpi", "fit_gpi"),
     "PreisachFit": ("._identification.fit_preisach", "PreisachFit"),
     "fit_preisach": ("._identification.fit_preisach", "fit_preisach"),
     "save_model": ("._identification.model_file", "save_model"),
@@ -227,6 +230,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.fit import fit_pi as fit_pi
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
+    from ._identification.fit_gpi import GPIFit as GPIFit
+    from ._identification.fit_gpi import fit_gpi as fit_gpi
     from ._identification.fit_preisach import PreisachFit as PreisachFit
     from ._identification.fit_preisach import fit_preisach as fit_preisach
     from ._identification.identify import Identification as Identification
@@ -243,6 +248,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.time_constants import shortest_time_constant as shortest_time_constant
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
+    from ._models.gpi import GeneralizedPI as GeneralizedPI
     from ._models.preisach import Preisach as Preisach
     from ._operators.figure import loop_figure as loop_figure
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401

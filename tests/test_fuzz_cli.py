@@ -28,6 +28,7 @@ from hypothesis import strategies as st
 from piest_jax._cli import COMMANDS, build_parser, main
 from piest_jax._cli import compensate as compensate_cmd
 from piest_jax._cli import fit as fit_cmd
+from piest_jax._cli import fit_saturating as fit_saturating_cmd
 from piest_jax._cli import montecarlo as montecarlo_cmd
 from piest_jax._cli import reproduce as reproduce_cmd
 from piest_jax._cli import simulate as simulate_cmd
@@ -366,7 +367,7 @@ def _reached(*args, **kwargs):
 # inputs are accepted (simulate is cheap and runs until it writes).
 _STUBS = {
     "simulate": [(simulate_cmd._io, "write_csv")],
-    "fit": [(fit_cmd, "identify")],
+    "fit": [(fit_cmd, "identify"), (fit_saturating_cmd, "fit_gpi"), (fit_saturating_cmd, "fit_preisach")],
     "diagnose": [(_diagnose, "diagnose")],
     "compensate": [(compensate_cmd, "feedforward")],
     "montecarlo": [(montecarlo_cmd, "pe_map")],

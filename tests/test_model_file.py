@@ -121,3 +121,64 @@ def test_missing_file_and_unsaveable_models(tmp_path):
     with pytest.raises(ValueError, match=r"cannot save a model with non-finite offset"):
         pj.save_model(tmp_path / "x.json", pj.PIModel(R, W, np.nan))
     assert not (tmp_path / "x.json").exists()
+
+
+def _saturating(n=400):
+    t = np.linspace(0.0, 1.0, n)
+    u = 2.0 * np.sin(2 * np.pi * 4 * t) * (0.3 + 0.7 * t)
+    pi = pj.PIOperator(np.array([0.0, 0.3, 0.8]), np.array([0.9, 0.5, 0.3]), u[0])
+    g = pj.GeneralizedPI(pi, [1.2, 0.4], [0.1, 0.9], [1.0, 2.0], 0.3)
+    return u, np.asarray(g(u)) + 1e-3 * np.random.default_rng(1).standard_normal(n)
+
+
+def test_gpi_fit_round_trip_reproduces_its_rmse(tmp_path):
+    u, y = _saturating()
+    fit = pj.fit_gpi(u, y, 3)
+    path = pj.save_model(tmp_path / "g.json", fit)
+    keys = json.loads(path.read_text())
+    assert keys["structure"] == "gpi" and keys["output_function"]["form"] == "tanh"
+    back = pj.load_model(path)
+    assert isinstance(back, pj.GeneralizedPI)
+    np.testing.assert_array_equal(back(u), fit.model(u))
+    rmse = float(np.sqrt(np.mean((np.asarray(back(u)) - y) ** 2)))
+    np.testing.assert_allclose(rmse, float(fit.rmse), rtol=1e-9)
+
+
+@pytest.mark.parametrize("initial_states", [None, 0.0])
+def test_preisach_fit_round_trip_reproduces_its_rmse(tmp_path, initial_states):
+    u, y = _saturating()
+    fit = pj.fit_preisach(u, y, n_widths=4, n_centres=6, smoothness=1e-3,
+                          initial_states=initial_states)
+    path = pj.save_model(tmp_path / "p.json", fit)
+    keys = json.loads(path.read_text())
+    assert keys["structure"] == "preisach" and keys["starts_at_rest"] == (initial_states is None)
+    back = pj.load_model(path)
+    assert isinstance(back, pj.Preisach)
+    np.testing.assert_allclose(np.asarray(back(u)), np.asarray(fit.model(u)), rtol=0, atol=1e-12)
+    rmse = float(np.sqrt(np.mean((np.asarray(back(u)) - y) ** 2)))
+    np.testing.assert_allclose(rmse, fit.rmse, rtol=1e-7)
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ({"schema": 1, "structure": "gpi", "thresholds": R, "weights": W},
+         r"`output_function` must hold amplitudes, centres and scales"),
+        ({"schema": 1, "structure": "gpi", "thresholds": R, "weights": W,
+          "output_function": {"amplitudes": [1.0], "centres": [0.0], "scales": [-1.0]}},
+         r"unusable output_function \(`scales` must be positive"),
+        ({"schema": 1, "structure": "gpi", "thresholds": R, "weights": W,
+          "output_function": {"form": "atan", "amplitudes": [1], "centres": [0], "scales": [1]}},
+         r"unknown output function form 'atan'"),
+        ({"schema": 1, "structure": "preisach", "half_widths": [0.0], "centres": [0.0, 1.0]},
+         r"missing blur, density"),
+        ({"schema": 1, "structure": "preisach", "half_widths": [0.0], "centres": [0.0, 1.0],
+          "blur": [0.5, 0.5], "density": [[1.0, 2.0, 3.0]]},
+         r"unusable Preisach model \(`density` must have shape"),
+    ],
+)
+def test_bad_gpi_and_preisach_files_are_refused(tmp_path, content, message):
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(content))
+    with pytest.raises(pj.DataError, match=f"^{path}: .*{message}"):
+        pj.load_model(path)

@@ -341,3 +341,12 @@ def test_fit_errors(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         pj.fit_preisach(args.pop("u"), args.pop("y"), **args)
+
+
+def test_with_initial_states_continues_a_run(rng):
+    model = pj.Preisach([0.0, 0.2, 0.5], [-0.5, 0.0, 0.5], rng.normal(size=(3, 3)), offset=0.1)
+    u = reversal_input(rng, 12)
+    head, tail = u[:50], u[50:]
+    cont = model.with_initial_states(model.final_states(head))
+    np.testing.assert_allclose(np.asarray(cont(tail)), np.asarray(model(u))[50:], atol=1e-13)
+    assert model.with_initial_states(None).initial_states is None

@@ -8,9 +8,9 @@ import numpy as np
 from .._identification.covariance import table as parameter_table
 from .._identification.figures import fit_figure
 from .._identification.fit import SOLVERS
-from .._identification.identify import check_options, identify, plan
+from .._identification.identify import check_options, fit_mask, identify, plan
 from .._identification.model_size import CRITERIA
-from . import memory
+from . import fit_saturating, memory
 from . import output as _io
 from ._common import (
     CLIError,
@@ -62,6 +62,16 @@ terminal unless --quiet). The validation record never takes part in choosing or 
 and of its RMSE; they still drive the plays. Weights are kept positive (so the
 model can be inverted by `piest compensate`) unless --signed-weights.
 
+--model gpi fits y = offset + sum_k a_k tanh((v - c_k)/s_k), v = sum_j w_j H_{r_j}[u]: the PI's
+loops bent into saturating ones (B-H loops, piezos at large drive), everything jointly, with
+--terms K tanh terms (default 2) and --plays N (required); fit.json adds output_function
+(amplitudes, centres, scales). --model preisach fits a discrete Preisach model on a --grid K,M
+of half-widths and centres (default 16,16), its density smoothed (--smoothness, default chosen
+on held-out blocks) and non-negative unless --signed-weights; fit.json holds the grid
+(half_widths, centres, blur), the density, smoothness and the held-out scores. Both are
+invertible by `piest compensate` (a signed Preisach density is not); neither is among
+--model auto's choices, and options they would ignore are refused.
+
 A candidate with a parameter the record does not determine (see fit.md) is never chosen: on the
 Aye & Ang piezo pair (identify on one run, predict the other) the default keeps 8 plays and no
 creep (validation_rmse 1.34, validation_rmse_ic 0.63), the creep candidates being undetermined.
@@ -99,7 +109,7 @@ def _counts(what: str, one: str, example: str):
 
 plays_list = _counts("numbers of plays", "number of plays", "2,3,4")
 lags_list = _counts("lag counts", "lag count", "1,2,3")
-MODELS = ("auto", "pi", "pi+creep")
+MODELS = ("auto", "pi", "pi+creep", *fit_saturating.MODELS)
 
 
 def add_arguments(p):
@@ -107,7 +117,8 @@ def add_arguments(p):
     p.add_argument(
         "--model", choices=MODELS, default="auto",
         help="auto (default): choose pi or pi+creep by held-out error; pi: plays only; "
-        "pi+creep: plays and a creep of first-order lags",
+        "pi+creep: plays and a creep of first-order lags; gpi: plays, then a saturating "
+        "output function (needs --plays N); preisach: a discrete Preisach model",
     )
     p.add_argument(
         "--lags", type=lags_list, default=None, metavar="K[,K...]",
@@ -158,6 +169,7 @@ def add_arguments(p):
         metavar="T",
         help="fit only the samples at time >= T (earlier ones still drive the plays)",
     )
+    fit_saturating.add_arguments(p)
     add_record_options(p)
     add_output_options(p, "piest-fit")
 
@@ -179,6 +191,17 @@ def _as_options(e: ValueError) -> CLIError:
 def run(args) -> int:
     import jax
 
+    # gpi and preisach: their own options checked first, their fit once the records are read.
+    fit_saturating.refuse_ignored(args)
+    if args.model in fit_saturating.MODELS:
+        out = _io.check_outputs(args.out, OUTPUTS if args.validate else OUTPUTS[:3], args.force)
+        rec = read_record(args.data, args)
+        val = read_record(args.validate, args, validation=True) if args.validate else None
+        try:
+            mask = fit_mask(rec, args.fit_from)
+        except ValueError as e:
+            raise _as_options(e) from None
+        return fit_saturating.run(args, rec, val, mask, out)
     options = dict(model=args.model, plays=args.plays, lags=args.lags, time_constants=args.time_constants,
                    candidates=args.candidates, criterion=args.criterion, initial_states=args.initial_states,
                    fit_initial_states=args.fit_initial_states)

@@ -13,6 +13,11 @@ past input. So sample by sample u[t] = Q⁻¹[y_d - c - Σ c_k a_k z_k[t-1]](t),
 and the lags advancing in one scan: the exact inverse of PI + creep (inverse PI after the creep
 compensator). It exists when Q's cumulative weights are all positive.
 
+A generalized PI model (PI, then a saturating output function g) and a Preisach model with a
+non-negative density carry their own inverses ([`GeneralizedPI.inverse`][piest_jax.GeneralizedPI.inverse]:
+u = P⁻¹[g⁻¹(y_d)]; [`Preisach.inverse`][piest_jax.Preisach.inverse]: a bisection per sample);
+`feedforward` calls them.
+
 The comparison without compensation is the best linear feedforward: the straight line
 u = (y_d - b)/a, where y ≈ a u + b is the least-squares line through the model's own (u, y_d) pairs,
 i.e. what an engineer who ignores hysteresis but knows the gain and offset would apply.
@@ -28,10 +33,14 @@ from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
 from .._models.composite import HysteresisModel
 from .._models.creep import lag_step
+from .._models.gpi import GeneralizedPI
+from .._models.preisach import Preisach
 from .._operators.inverse import inverse_parameters
 from .._operators.pi import PIOperator, inverse
 from .._operators.play import play_step
 from .fit import PIFit
+from .fit_gpi import GPIFit
+from .fit_preisach import PreisachFit
 from .pi_model import PIModel
 
 
@@ -86,7 +95,8 @@ def _model(model, offset):
         op, c = model, 0.0 if offset is None else offset
     else:
         raise ValueError(
-            f"`model` must be a PIFit, PIModel, HysteresisModel or PIOperator, got {type(model).__name__}"
+            "`model` must be a PIFit, PIModel, HysteresisModel, PIOperator, GeneralizedPI or "
+            f"Preisach (or their fits), got {type(model).__name__}"
         )
     return op, jnp.asarray(c, op.weights.dtype), creep
 
@@ -120,9 +130,24 @@ def _creep_inverse(op: PIOperator, creep, v, creep_states=None):
     return u
 
 
+def _own_inverse(model, desired, offset, initial_states, creep_states):
+    """A generalized PI's or a Preisach model's inverse, started from `initial_states`."""
+    if offset is not None or creep_states is not None:
+        raise ValueError(f"a {type(model).__name__} has no separate offset or creep to override: "
+                         "give neither `offset` nor `creep_states`")
+    if isinstance(model, GeneralizedPI):
+        if initial_states is not None:
+            model = model.with_initial_states(
+                admissible_states(model.pi.thresholds, initial_states))
+        return model.inverse(desired)
+    if initial_states is not None:
+        model = model.with_initial_states(initial_states)
+    return model.inverse(desired)
+
+
 def feedforward(
-    model: PIFit | PIModel | HysteresisModel | PIOperator, desired: SignalLike, *, offset=None,
-    initial_states=None, creep_states=None,
+    model: PIFit | PIModel | HysteresisModel | PIOperator | GeneralizedPI | Preisach,
+    desired: SignalLike, *, offset=None, initial_states=None, creep_states=None,
 ) -> Signal:
     """The input that makes the model's output follow `desired`: u = P⁻¹[desired - offset], or
     with creep the sample-by-sample inverse of PI + creep described above.
@@ -130,18 +155,26 @@ def feedforward(
     **Arguments:**
 
     - `model`: a [`PIFit`][], [`PIModel`][] or [`HysteresisModel`][] (its offset, and creep when
-      it has one, are used) or a [`PIOperator`][] (offset 0 unless given).
+      it has one, are used) or a [`PIOperator`][] (offset 0 unless given); or a
+      [`GeneralizedPI`][piest_jax.GeneralizedPI] or [`Preisach`][piest_jax.Preisach] (or the fit
+      holding one), inverted by its own `inverse` (no `offset` or `creep_states` then).
     - `desired`: the desired output trajectory (T,).
     - `offset`: overrides the model's output offset.
     - `initial_states`: the plant's play states at the start (scalar or (n,)); default the model's,
-      made admissible with [`admissible_states`][].
+      made admissible with [`admissible_states`][] (a Preisach model's are taken as given; by
+      default it starts at rest at the first input).
     - `creep_states`: the lags' states at the start (scalar or (K,)); default the model's, or at
       rest at the input that the plays' states give for the first target.
 
     **Returns:** the feedforward input (T,). Raises `ValueError` when the model is not invertible
     (r_1 != 0 or a cumulative weight <= 0, the creep's share of the first weight included; fit
-    with `positive_weights=True` to keep the plays' part invertible).
+    with `positive_weights=True` to keep the plays' part invertible), when a generalized PI's
+    desired output leaves the range it saturates at, or when a Preisach density is negative.
     """
+    if isinstance(model, GPIFit | PreisachFit):
+        model = model.model
+    if isinstance(model, GeneralizedPI | Preisach):
+        return _own_inverse(model, desired, offset, initial_states, creep_states)
     op, c, creep = _model(model, offset)
     yd = _checks.finite(_checks.signal(desired, "desired"), "desired")
     x0 = op.initial_states if initial_states is None else initial_states

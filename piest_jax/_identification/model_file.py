@@ -19,9 +19,13 @@ import numpy as np
 from .._data.record import DataError
 from .._models.composite import HysteresisModel
 from .._models.creep import Creep
+from .._models.gpi import GeneralizedPI
+from .._models.preisach import Preisach
 from .._operators.pi import PIOperator
 from .._report import write_json
 from .fit import PIFit
+from .fit_gpi import GPIFit
+from .fit_preisach import PreisachFit
 from .pi_model import PIModel
 
 SCHEMA = 1
@@ -48,14 +52,18 @@ def register_structure(name: str, types, to_keys, from_keys) -> None:
 def model_keys(model) -> dict:
     """The JSON object [`save_model`][] writes for `model`: schema, structure, parameters.
 
-    **Arguments:** `model`, of a registered structure (a [`PIModel`][], [`PIFit`][] or
-    [`PIOperator`][]).
+    **Arguments:** `model`, of a registered structure (a [`PIModel`][], [`PIFit`][],
+    [`PIOperator`][], [`HysteresisModel`][], [`GeneralizedPI`][piest_jax.GeneralizedPI] or
+    [`Preisach`][piest_jax.Preisach]; a [`GPIFit`][piest_jax.GPIFit] or
+    [`PreisachFit`][piest_jax.PreisachFit] saves its model).
 
     **Returns:** a dict, ready for `json.dumps` once arrays become lists. Raises `TypeError`
     for a model of no registered structure.
     """
     if isinstance(model, PIFit):
         model = model.model()
+    if isinstance(model, GPIFit | PreisachFit):
+        model = model.model
     # A composite model names its own structure (PI alone or PI + creep); others by their class.
     named = getattr(model, "structure", None)
     if isinstance(named, str) and named in _STRUCTURES and isinstance(model, _STRUCTURES[named].types):
@@ -99,7 +107,9 @@ def save_model(path, model) -> Path:
     """Write a model as a JSON model file that [`load_model`][] reads back.
 
     **Arguments:** `path`, the destination (its folder is created); `model`, a [`PIModel`][],
-    a [`PIFit`][] (its model part) or a [`PIOperator`][] (offset 0).
+    a [`PIFit`][] (its model part), a [`PIOperator`][] (offset 0), a [`HysteresisModel`][], a
+    [`GeneralizedPI`][piest_jax.GeneralizedPI] or a [`Preisach`][piest_jax.Preisach] (or the
+    fit holding one).
 
     **Returns:** the path written. Raises `ValueError` when a parameter is not finite.
     """
@@ -246,3 +256,81 @@ def _creep_from_keys(d: dict, source: str) -> HysteresisModel:
 
 
 register_structure("pi+creep", (HysteresisModel,), _creep_keys, _creep_from_keys)
+
+
+# --- the generalized PI (a PI operator, then a saturating output function) --------------------
+
+
+def _gpi_keys(model: GeneralizedPI) -> dict:
+    return {
+        **_pi_keys(model.pi),
+        "offset": np.asarray(model.offset, np.float64),
+        # g(v) = offset + Σ_k amplitudes_k tanh((v - centres_k)/scales_k), v the PI's output.
+        "output_function": {
+            "form": "tanh",
+            "amplitudes": np.asarray(model.amplitudes, np.float64),
+            "centres": np.asarray(model.centres, np.float64),
+            "scales": np.asarray(model.scales, np.float64),
+        },
+    }
+
+
+def _gpi_from_keys(d: dict, source: str) -> GeneralizedPI:
+    pi = _pi_from_keys(d, source)
+    g = d.get("output_function")
+    if not isinstance(g, dict) or not {"amplitudes", "centres", "scales"} <= set(g):
+        raise DataError(f"{source}: `output_function` must hold amplitudes, centres and scales")
+    if g.get("form", "tanh") != "tanh":
+        raise DataError(f"{source}: unknown output function form {g.get('form')!r}; "
+                        "this piest_jax reads 'tanh'")
+    _no_booleans(g, ("amplitudes", "centres", "scales"), source + ": output_function")
+    try:
+        a, c, s = (np.asarray(g[k], dtype=float) for k in ("amplitudes", "centres", "scales"))
+        if not all(np.all(np.isfinite(v)) for v in (a, c, s)):
+            raise ValueError("amplitudes, centres and scales must be finite")
+        return GeneralizedPI(pi.operator(), a, c, s, pi.offset)
+    except (TypeError, ValueError) as e:
+        raise DataError(f"{source}: unusable output_function ({' '.join(str(e).split())})") from None
+
+
+register_structure("gpi", (GeneralizedPI,), _gpi_keys, _gpi_from_keys)
+
+
+# --- the discrete Preisach model (blurred relays on a half-width × centre grid) ---------------
+
+
+def _preisach_keys(model: Preisach) -> dict:
+    keys = {
+        "half_widths": np.asarray(model.half_widths, np.float64),
+        "centres": np.asarray(model.centres, np.float64),
+        "blur": np.asarray(model.blur, np.float64),
+        "density": np.asarray(model.density, np.float64),
+        "offset": np.asarray(model.offset, np.float64),
+        # At rest: every play starts at the first input of whatever record the model runs on.
+        "starts_at_rest": model.initial_states is None,
+    }
+    if model.initial_states is not None:
+        keys["initial_states"] = np.asarray(model.initial_states, np.float64)
+    return keys
+
+
+def _preisach_from_keys(d: dict, source: str) -> Preisach:
+    names = ("half_widths", "centres", "blur", "density", "offset", "initial_states")
+    missing = [k for k in names[:4] if k not in d]
+    if missing:
+        raise DataError(f"{source}: missing {', '.join(missing)} (a Preisach model file holds "
+                        "half_widths, centres, blur and density)")
+    _no_booleans(d, names, source)
+    try:
+        x0 = d.get("initial_states")
+        values = [np.asarray(d[k], dtype=float) for k in names[:4]]
+        offset = float(d.get("offset", 0.0))
+        if not all(np.all(np.isfinite(v)) for v in values) or not np.isfinite(offset):
+            raise ValueError("half_widths, centres, blur, density and offset must be finite")
+        r, c, blur, mu = values
+        return Preisach(r, c, mu, offset, None if x0 is None else np.asarray(x0, float), blur)
+    except (TypeError, ValueError) as e:
+        raise DataError(f"{source}: unusable Preisach model ({' '.join(str(e).split())})") from None
+
+
+register_structure("preisach", (Preisach,), _preisach_keys, _preisach_from_keys)

@@ -202,6 +202,17 @@ class Preisach(eqx.Module):
         s = jnp.clip((H[:, :, None] - self.centres) / self.blur, -1.0, 1.0)
         return self.offset + jnp.einsum("tkm,km->t", s, self.density)
 
+    def with_initial_states(self, play_states) -> "Preisach":
+        """The same model with its plays started from `play_states` (scalar or (K,); None: at
+        rest at each record's first input).
+
+        **Arguments:** `play_states`, the plays' states before the first sample, or None.
+
+        **Returns:** a new `Preisach`.
+        """
+        return Preisach(self.half_widths, self.centres, self.density, self.offset, play_states,
+                        self.blur, self.method)
+
     def final_states(self, u: SignalLike) -> Float[Array, " widths"]:
         """The plays' states after the last sample of `u` (to continue a run where it ended).
 

@@ -1,0 +1,213 @@
+"""Fitting a generalized PI model y = g(P[u]) to measured (u, y): everything jointly.
+
+The thresholds, the (positive) weights, the output function's amplitudes, centres and scales and
+the offset are fitted together by optimistix (Levenberg-Marquardt by default) through the play
+scan, in the normalised units of `fit_pi` (`fit_data.prepare`: input and output each spanning
+[-1, 1]), with `fit_pi`'s threshold parameterisation (r_1 = 0, softplus increments, an optional
+upper bound), its starting threshold grids and its model runner (`fit.run`), so the PI part is
+the same model in both fits.
+
+**The scale.** (w, c, s) -> (λw, λc, λs) leaves the model unchanged, so one scale is fixed: s_1
+= 1 (the first term's scale). Every other parameter is then determined by a record that excites
+the plays and reaches into the saturation.
+
+**Starts.** Each start takes its thresholds from `fit_pi`'s grids and its weights and offset from
+the plain PI's linear least squares at those thresholds (`fit._initial_params`); the output
+function starts close to the identity over the data: amplitudes summing to 1.5 (the data span
+[-1, 1], so the start saturates mildly), centres spread over [-1/2, 1/2], scales 1, and the PI's
+weights shrunk by the output function's slope at 0 so that the start reproduces the PI fit near
+the middle of the range.
+
+Back in the data's units: r = u_half r', w = w'/u_half (the PI output keeps the normalised
+output's unit), c = c' + u_mid Σ w, s = s', a = y_half a', offset = y_mid + y_half offset'.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax import lax
+
+from .._custom_types import Scalar, Signal, SignalLike
+from .._models.gpi import GeneralizedPI, output_function
+from .._operators.pi import PIOperator
+from .fit import (
+    Solver,
+    _constrained,
+    _grid,
+    _initial_params,
+    _softplus_inv,
+    default_starts_at_once,
+    run,
+)
+from .fit_data import prepare
+from .solvers import check_solver, least_squares_solver, result_name
+
+START_AMPLITUDE = 1.5  # the start's Σ a_k in normalised output units (the data span [-1, 1])
+
+
+class GPIFit(eqx.Module):
+    """The result of [`fit_gpi`][piest_jax.fit_gpi].
+
+    **Fields:**
+
+    - `model`: the fitted [`GeneralizedPI`][piest_jax.GeneralizedPI], in the data's units, with
+      s_1 = 1.
+    - `rmse`: root-mean-square residual on the fitted samples.
+    - `result`: the optimistix result code of the chosen start; `n_steps` its solver steps.
+    - `start_rmse` (starts,): every start's final RMSE.
+    """
+
+    model: GeneralizedPI
+    rmse: Scalar
+    result: optx.RESULTS
+    n_steps: jax.Array
+    start_rmse: jax.Array
+
+    @property
+    def result_name(self) -> str:
+        """The solver result as a name such as `"successful"` or `"max_steps_reached"`."""
+        return result_name(self.result)
+
+    @property
+    def n_plays(self) -> int:
+        """The number of plays n."""
+        return self.model.n_plays
+
+    def __call__(self, u: SignalLike, initial_states=None) -> Signal:
+        """The fitted model's output for `u` (T,), its plays started from `initial_states`
+        (scalar or (n,); default the fitted ones)."""
+        m = self.model if initial_states is None else self.model.with_initial_states(initial_states)
+        return m(u)
+
+
+def _unpack(params, r_bound):
+    r, w = _constrained(params, True, r_bound)
+    # s_1 = 1; with one term there is no other scale (and no empty parameter array).
+    log_s = jnp.zeros(1, params["centres"].dtype)
+    if "log_scales" in params:
+        log_s = jnp.concatenate([log_s, params["log_scales"]])
+    return r, w, params["log_amplitudes"], params["centres"], log_s
+
+
+def _predict(params, u, x0, r_bound):
+    r, w, log_a, c, log_s = _unpack(params, r_bound)
+    v = run(u, r, w, 0.0, params.get("initial_states", x0))
+    return output_function(v, log_a, c, log_s, params["offset"])
+
+
+def _residuals(params, args):
+    u, y, x0, mask, r_bound = args
+    count = jnp.maximum(jnp.sum(mask), 1.0)
+    return mask * (_predict(params, u, x0, r_bound) - y) / jnp.sqrt(count)
+
+
+def _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states):
+    p = _initial_params(r0, u, y, x0, mask, True, fit_initial_states, r_bound)
+    dtype = u.dtype
+    log_a = jnp.full(n_terms, jnp.log(START_AMPLITUDE / n_terms), dtype)
+    c = 0.5 * jnp.linspace(-1.0, 1.0, n_terms, dtype=dtype) if n_terms > 1 else jnp.zeros(1, dtype)
+    slope = jnp.sum(jnp.exp(log_a) / jnp.cosh(c) ** 2)  # g'(0) with unit scales
+    p["weights"] = _softplus_inv(jax.nn.softplus(p["weights"]) / slope)
+    p["log_amplitudes"] = log_a
+    p["centres"] = c
+    if n_terms > 1:
+        p["log_scales"] = jnp.zeros(n_terms - 1, dtype)
+    return p
+
+
+@eqx.filter_jit
+def _solve_starts(r0s, u, y, x0, mask, r_bound, *, n_terms, fit_initial_states, solver,
+                  max_steps, rtol, atol, batch):
+    args = (u, y, x0, mask, r_bound)
+
+    def one(r0):
+        p0 = _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states)
+        sol = optx.least_squares(_residuals, least_squares_solver(solver, rtol, atol), p0,
+                                 args=args, max_steps=max_steps, throw=False)
+        loss = jnp.sum(_residuals(sol.value, args) ** 2)
+        loss = jnp.where(jnp.isfinite(loss), loss, jnp.inf)
+        return sol.value, loss, sol.result, sol.stats["num_steps"]
+
+    # `batch` starts at a time under vmap: memory grows with batch x T, not starts x T.
+    return lax.map(one, r0s, batch_size=batch)
+
+
+def fit_gpi(
+    u: SignalLike,
+    y: SignalLike,
+    n_plays: int,
+    *,
+    n_terms: int = 2,
+    fit_initial_states: bool = False,
+    initial_states=None,
+    solver: Solver = "lm",
+    n_starts: int = 4,
+    key=None,
+    mask=None,
+    max_threshold=None,
+    max_steps: int = 200,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    starts_at_once: int | None = None,
+) -> GPIFit:
+    """Fit a generalized PI model y = g(P[u]) (thresholds, positive weights, the output
+    function's amplitudes, centres and scales, and the offset) to one record, jointly.
+
+    **Arguments:**
+
+    - `u`, `y`: the measured input and output, (T,) each.
+    - `n_plays`: the number of plays n.
+    - `n_terms`: the output function's tanh terms K (default 2: one term fixes the knee's shape,
+      a second lets the knee and the approach to saturation differ; see
+      [`GeneralizedPI`][piest_jax.GeneralizedPI]). 2n + 3K parameters in all (s_1 = 1 fixed).
+    - `fit_initial_states`: also fit the plays' states before the first sample.
+    - `initial_states`: fixed states (scalar or (n,)) when they are not fitted; default u[0].
+    - `solver`: `"lm"`, `"gn"`, `"bfgs"` or an optimistix solver object, as for [`fit_pi`][].
+    - `n_starts`: starting threshold grids (those of [`fit_pi`][]); the best fit is kept.
+    - `key`: a PRNG key; when given, starts after the first use random threshold spacings.
+    - `mask`: (T,) weights on the samples' residuals, 0 to hold a sample out (it still drives
+      the plays).
+    - `max_threshold`: an upper bound on every threshold (data units), kept by construction.
+    - `max_steps`, `rtol`, `atol`: the solver's budget and tolerances (normalised units).
+    - `starts_at_once`: starts solved together under `vmap` (memory grows with it times T);
+      default as for [`fit_pi`][].
+
+    **Returns:** a [`GPIFit`][piest_jax.GPIFit] in the data's units. Raises `ValueError` for
+    mismatched or non-finite data, an input with zero range, or more parameters than fitted
+    samples.
+    """
+    check_solver(solver)
+    if not isinstance(n_terms, (int, np.integer)) or n_terms < 1:
+        raise ValueError(f"`n_terms` must be a positive whole number, got {n_terms!r}")
+    if not isinstance(n_starts, (int, np.integer)) or n_starts < 1:
+        raise ValueError(f"`n_starts` must be at least 1, got {n_starts!r}")
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
+    n_terms = int(n_terms)
+    un, yn, mask, s, x0, _ = prepare(u, y, n_plays, mask, None, initial_states,
+                                     3 if fit_initial_states else 2, extra=3 * n_terms - 1)
+    r_bound = None
+    if max_threshold is not None:
+        if not float(max_threshold) > 0:
+            raise ValueError(f"`max_threshold` must be positive, got {max_threshold}")
+        r_bound = jnp.asarray(float(max_threshold), un.dtype) / s.u_half
+    r0s = _grid(n_plays, n_starts, un.dtype, key)
+    batch = default_starts_at_once(un.shape[0]) if starts_at_once is None else int(starts_at_once)
+    params, loss, results, steps = _solve_starts(
+        r0s, un, yn, x0, mask, r_bound, n_terms=n_terms, fit_initial_states=fit_initial_states,
+        solver=solver, max_steps=int(max_steps), rtol=rtol, atol=atol,
+        batch=max(1, min(batch, n_starts)))
+    best = int(jnp.argmin(loss))
+    if not bool(jnp.isfinite(loss[best])):
+        raise ValueError("every start of the fit produced non-finite residuals")
+    p = jax.tree.map(lambda a: a[best], params)
+    r, w, log_a, c, log_s = _unpack(p, r_bound)
+    w = w / s.u_half
+    pi = PIOperator(r * s.u_half, w, s.u_mid + s.u_half * p.get("initial_states", x0))
+    model = GeneralizedPI(pi, s.y_half * jnp.exp(log_a), c + s.u_mid * jnp.sum(w),
+                          jnp.exp(log_s), s.y_mid + s.y_half * p["offset"])
+    return GPIFit(model=model, rmse=jnp.sqrt(loss[best]) * s.y_half,
+                  result=jax.tree.map(lambda a: a[best], results), n_steps=steps[best],
+                  start_rmse=jnp.sqrt(loss) * s.y_half)
