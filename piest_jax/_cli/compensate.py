@@ -129,22 +129,7 @@ def run(args) -> int:
         # The model's own run: its lags at rest at the first input, as the feedforward assumed
         # unless the file states their states.
         ym = np.asarray(model(u))
-    written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
-    summary = {
-        "model": str(args.model),
-        "desired": str(args.desired),
-        "column": col,
-        "n_samples": len(t),
-        "initial_states": x0,
-        "u_min": float(u.min()),
-        "u_max": float(u.max()),
-        "max_model_error": float(np.max(np.abs(ym - yd))),
-    } | _outside(args.model, u)
-    written.append(_io.write_json(out / "compensate.json", summary))
-    written.append(_io.save_figure(compensation_figure(t, yd, u), out / "compensate.png", dpi=110))
-    for p in written:
-        print(p)
-    return 0
+    return _write(args, out, t, yd, u, ym, {"column": col, "initial_states": x0})
 
 
 def _own_inverse_model(path) -> GeneralizedPI | Preisach | None:
@@ -172,15 +157,22 @@ def _run_own_inverse(args, out, model, t, yd, col) -> int:
         raise CLIError(f"{args.model}: {' '.join(str(e).split())}") from None
     ym = np.asarray(model(u))
     states = model.pi.initial_states if gpi else model.initial_states
+    # None: a Preisach model's plays at rest at the first input.
+    return _write(args, out, t, yd, u, ym, {
+        "structure": "gpi" if gpi else "preisach", "column": col,
+        "initial_states": None if states is None else np.asarray(states)})
+
+
+def _write(args, out, t, yd, u, ym, fields) -> int:
+    """compensate.csv, compensate.json (the model's `fields` among the summary) and the figure."""
     written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
     summary = {
         "model": str(args.model),
-        "structure": "gpi" if gpi else "preisach",
+        **{k: fields[k] for k in ("structure",) if k in fields},
         "desired": str(args.desired),
-        "column": col,
+        "column": fields["column"],
         "n_samples": len(t),
-        # None: a Preisach model's plays at rest at the first input.
-        "initial_states": None if states is None else np.asarray(states),
+        "initial_states": fields["initial_states"],
         "u_min": float(u.min()),
         "u_max": float(u.max()),
         "max_model_error": float(np.max(np.abs(ym - yd))),

@@ -75,6 +75,8 @@ invertible by `piest compensate` (a signed Preisach density is not); neither is 
 A candidate with a parameter the record does not determine (see fit.md) is never chosen: on the
 Aye & Ang piezo pair (identify on one run, predict the other) the default keeps 8 plays and no
 creep (validation_rmse 1.34, validation_rmse_ic 0.63), the creep candidates being undetermined.
+Creep time constants are kept ordered, at least sqrt(10) apart and no faster than the input's
+reversals allow (pj.shortest_time_constant); creep weights are positive unless --signed-weights.
 
 example:  piest fit data.csv --validate val.csv --out fitted"""
 

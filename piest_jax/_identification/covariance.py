@@ -318,7 +318,7 @@ def scales(names, values, u_half, y_half):
 
 
 def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, lag_base, fit_states,
-               n_plays, n_lags) -> dict:
+               n_plays, n_lags, positive_weights=False) -> dict:
     """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
     padded; `r`, `w` its thresholds and weights): the Jacobian over every padded parameter (one
     compilation per padded shape), then the columns of the parameters in use."""
@@ -331,7 +331,10 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, la
         parts.append(um + uh * p["initial_states"])
     total = np.sum(parts[1])
     if layout.k:
-        c = p["lag_weights"] if lag_active is None else p["lag_weights"] * np.asarray(lag_active)
+        c = p["lag_weights"]
+        if positive_weights:
+            c = np.logaddexp(0.0, c)  # the fit's softplus
+        c = c if lag_active is None else c * np.asarray(lag_active)
         parts += [np.exp(np.asarray(lag_log_tau(p["lag_theta"], lag_base))) * dt, c * yh / uh]
         total = total + np.sum(parts[-1])
         if fit_states:
