@@ -1,6 +1,7 @@
 """The diagnosis workflow: noise floor, input checks, locating, naming (a confusion matrix over
 generated records with hidden effects), and the `piest diagnose` command."""
 
+import dataclasses
 import json
 
 import jax
@@ -229,6 +230,15 @@ def test_cli_report_is_the_diagnosis_json(csv_files, tmp_path):
     expected["data"] = str(csv_files[0])
     expected["validation"]["data"] = str(csv_files[1])
     assert list(rep) == list(expected) and list(rep["validation"]) == list(expected["validation"])
+    # The order report.json has always had, which `Diagnosis.to_json` documents.
+    assert list(rep) == ["effects", "transferable_effects", "record_specific_effects", "baseline_rmse",
+                         "final_rmse", "noise_std_estimate", "candidates", "parameters", "refinement",
+                         "rounds", "pruned", "heldout", "n_samples", "search_step", "where", "validation",
+                         "data"]
+    assert list(rep["validation"]) == [
+        "baseline_rmse", "final_rmse", "baseline_rmse_ic", "final_rmse_ic", "baseline_fit_percent",
+        "final_fit_percent", "baseline_fit_percent_ic", "final_fit_percent_ic", "initial_conditions",
+        "noise_std_estimate", "baseline_rmse_offset_removed", "final_rmse_offset_removed", "effects_used", "data"]
     assert rep == json.loads(json_text(expected))
     assert "_arrays" not in rep and "data" not in d
     # The typed fields are the ones the report and the figure show.
@@ -246,6 +256,8 @@ def test_diagnosis_reads_as_its_report():
     d = pj.diagnose(rec, max_effects=1, candidates=["delay", "creep"], solver=None)
     report = d.to_json()
     assert list(d) == list(report) and len(d) == len(report) and dict(d) == report and d == report
+    assert d == dataclasses.replace(d, final_prediction=2 * d.final_prediction)  # equal reports
+    assert d != dataclasses.replace(d, final_rmse=2 * d.final_rmse)
     assert d["effects"] == d.effects and d["heldout"] == {"baseline_rmse": d.heldout_baseline_rmse,
                                                           "final_rmse": d.heldout_final_rmse}
     assert d["candidates"] == d.rounds[0]["candidates"] and set(d.candidates) == {"delay", "creep"}
