@@ -49,12 +49,12 @@ def run(args, shard, n_shards, save):
         t1 = time.time()
         # The whole diagnosis: its search names the effects, and it reports both models' RMSE over
         # the whole record.
-        s = pj.diagnose(rec)
-        rmse, rmse0 = s["final_rmse"], s["baseline_rmse"]
-        rows.append(dict(hidden=list(cls), named=s["effects"], pruned=s["pruned"], forms=truth["forms"],
+        d = pj.diagnose(rec)
+        rmse, rmse0 = d.final_rmse, d.baseline_rmse
+        rows.append(dict(hidden=list(cls), named=d.effects, pruned=d.pruned, forms=truth["forms"],
                          noise_std=truth["noise_std"], baseline_rmse=rmse0, final_rmse=rmse,
-                         noise_est=s["noise_std_estimate"], seconds=time.time() - t1))
-        print(cls, truth["forms"], "->", s["effects"], f"rmse/noise={rmse / truth['noise_std']:.2f}",
+                         noise_est=d.noise_std_estimate, seconds=time.time() - t1))
+        print(cls, truth["forms"], "->", d.effects, f"rmse/noise={rmse / truth['noise_std']:.2f}",
               f"{time.time() - t1:.0f}s", flush=True)
         save(rows, time.time() - t0)
     return rows

@@ -115,6 +115,8 @@ _EXPORTS = {
     "load_model": ("._identification.model_file", "load_model"),
     # diagnosis
     "diagnose": ("._diagnosis.diagnose", "diagnose"),
+    "Diagnosis": ("._diagnosis.diagnosis", "Diagnosis"),
+    "DiagnosisValidation": ("._diagnosis.diagnosis", "DiagnosisValidation"),
     "diagnosis_figure": ("._diagnosis.figure", "diagnosis_figure"),
     "EFFECTS": ("._diagnosis.effects", "EFFECTS"),
     "noise_std": ("._diagnosis.scaling", "noise_std"),
@@ -164,6 +166,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._data.record import load_dataset as load_dataset
     from ._data.record import load_record as load_record
     from ._diagnosis.diagnose import diagnose as diagnose
+    from ._diagnosis.diagnosis import Diagnosis as Diagnosis
+    from ._diagnosis.diagnosis import DiagnosisValidation as DiagnosisValidation
     from ._diagnosis.effects import EFFECTS as EFFECTS
     from ._diagnosis.figure import diagnosis_figure as diagnosis_figure
     from ._diagnosis.hidden import generate as hidden_effect_record  # noqa: F401

@@ -1,18 +1,21 @@
 """The diagnosis workflow: noise floor, input checks, locating, naming (a confusion matrix over
 generated records with hidden effects), and the `piest diagnose` command."""
 
+import dataclasses
 import json
 
 import jax
 import numpy as np
 import pytest
 
+import piest_jax as pj
 from piest_jax._cli import main
-from piest_jax._data.record import DataError, Record
+from piest_jax._data.record import DataError, Record, load_record
 from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._diagnosis import hidden as _hidden
 from piest_jax._diagnosis import locate as _locate
 from piest_jax._diagnosis.effects import EFFECTS
+from piest_jax._report import json_text
 
 N_SAMPLES = 500
 
@@ -213,3 +216,59 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     assert main(["diagnose", str(p), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "constant output" in err
+
+
+def test_cli_report_is_the_diagnosis_json(csv_files, tmp_path):
+    out = tmp_path / "diag"
+    options = ["--candidates", "delay", "--max-effects", "1"]
+    assert main(["diagnose", str(csv_files[0]), "--validate", str(csv_files[1]), "--out", str(out), *options]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    rec, val = load_record(csv_files[0]), load_record(csv_files[1])
+    d = pj.diagnose(rec, val, max_effects=1, candidates=["delay"])
+    # report.json is the diagnosis's report plus where its records came from, in the same order.
+    expected = d.to_json()
+    expected["data"] = str(csv_files[0])
+    expected["validation"]["data"] = str(csv_files[1])
+    assert list(rep) == list(expected) and list(rep["validation"]) == list(expected["validation"])
+    # The order report.json has always had, which `Diagnosis.to_json` documents.
+    assert list(rep) == ["effects", "transferable_effects", "record_specific_effects", "baseline_rmse",
+                         "final_rmse", "noise_std_estimate", "candidates", "parameters", "refinement",
+                         "rounds", "pruned", "heldout", "n_samples", "search_step", "where", "validation",
+                         "data"]
+    assert list(rep["validation"]) == [
+        "baseline_rmse", "final_rmse", "baseline_rmse_ic", "final_rmse_ic", "baseline_fit_percent",
+        "final_fit_percent", "baseline_fit_percent_ic", "final_fit_percent_ic", "initial_conditions",
+        "noise_std_estimate", "baseline_rmse_offset_removed", "final_rmse_offset_removed", "effects_used", "data"]
+    assert rep == json.loads(json_text(expected))
+    assert "_arrays" not in rep and "data" not in d
+    # The typed fields are the ones the report and the figure show.
+    assert isinstance(d.validation, pj.DiagnosisValidation) and d.record is rec and d.validation.record is val
+    assert d.effects == ["delay"] == d.transferable_effects and d.record_specific_effects == []
+    for y, pred, rmse in ((rec.y, d.final_prediction, d.final_rmse), (rec.y, d.baseline_prediction, d.baseline_rmse),
+                          (val.y, d.validation.final_prediction, d.validation.final_rmse)):
+        assert pred.shape == y.shape and np.sqrt(np.mean((pred - y) ** 2)) == pytest.approx(rmse, rel=1e-12)
+    assert np.std(val.y - d.validation.baseline_prediction) == pytest.approx(
+        d.validation.baseline_rmse_offset_removed, rel=1e-12)
+
+
+def test_diagnosis_reads_as_its_report():
+    rec, _ = _hidden.generate(("delay",), key=jax.random.PRNGKey(100), n_samples=300)
+    d = pj.diagnose(rec, max_effects=1, candidates=["delay", "creep"], solver=None)
+    report = d.to_json()
+    assert list(d) == list(report) and len(d) == len(report) and dict(d) == report and d == report
+    assert d == dataclasses.replace(d, final_prediction=2 * d.final_prediction)  # equal reports
+    assert d != dataclasses.replace(d, final_rmse=2 * d.final_rmse)
+    assert d["effects"] == d.effects and d["heldout"] == {"baseline_rmse": d.heldout_baseline_rmse,
+                                                          "final_rmse": d.heldout_final_rmse}
+    assert d["candidates"] == d.rounds[0]["candidates"] and set(d.candidates) == {"delay", "creep"}
+    assert d["n_samples"] == rec.n_samples == d.n_samples
+    assert "validation" not in d and d.get("validation") is None and d.validation is None
+    with pytest.raises(KeyError):
+        d["_arrays"]
+    # Each report is a new object: changing one leaves the diagnosis as it was.
+    report["rounds"][0]["best"] = "changed"
+    report["effects"].append("changed")
+    assert d.to_json()["rounds"][0]["best"] != "changed" and d.effects == d["effects"] != report["effects"]
+    with pytest.raises(TypeError):
+        d["effects"] = []
+    assert len(d.figure().axes) == 4

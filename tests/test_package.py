@@ -171,10 +171,10 @@ def _figure_calls():
     y = u + 0.1 * np.cos(2 * np.pi * 2 * t)
     rec = pj.Record(t, u, y)
     mask = (t >= 0.2).astype(float)
-    arrays = {"t": t, "u": u, "y": y, "base": 0.9 * y, "final": y,
-              "val_t": t, "val_u": u, "val_y": y, "val_base": 0.9 * y, "val_final": y}
-    diagnosis = {"_arrays": arrays, "effects": ["delay"], "baseline_rmse": 0.1, "final_rmse": 0.01,
-                 "validation": {"baseline_rmse": 0.2, "final_rmse": 0.02}}
+    val = pj.DiagnosisValidation(
+        rec, 0.2, 0.02, 0.1, 0.01, 50.0, 95.0, 60.0, 96.0, {}, 0.01, 0.2, 0.02, ["delay"], 0.9 * y, y)
+    diagnosis = pj.Diagnosis(rec, ["delay"], 0.1, 0.01, 0.01, {}, {}, [], [], 0.1, 0.01, 1, [], 0.9 * y, y,
+                             validation=val)
     k = np.arange(4.0)
     online = pj.OnlineEstimate(
         thresholds=k[:2], initial_states=k[:2], weights=k[:2], offset=np.float64(0.0), t=k,

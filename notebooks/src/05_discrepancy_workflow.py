@@ -50,7 +50,9 @@ SEARCH = dict(max_effects=1, candidates=("delay", "linear_dynamics")) if SMALL e
 # `pj.hidden_effect_record` draws a synthetic record: a random PI operator, a hidden effect in a
 # physical form *different from* the one the diagnosis fits (here the input reaches the actuator
 # late, by interpolation), and white plus quantisation noise. The diagnosis does not see the
-# truth.
+# truth. `pj.diagnose` returns a `pj.Diagnosis`: the effects named, both models' RMSEs, the
+# search's rounds and both models' predictions as fields; its `to_json()` is the report
+# `piest diagnose` writes.
 
 # %%
 rec, truth = pj.hidden_effect_record(("delay",), key=jax.random.key(1), n_samples=800)
@@ -58,23 +60,23 @@ print("hidden:", truth["forms"], f"| true noise std {truth['noise_std']:.4f}")
 print(f"noise floor estimated from the data: {pj.noise_std(rec.y):.4f}")
 
 report = pj.diagnose(rec, **SEARCH)
-print("named:", report["effects"])
-print(f"RMSE plain PI {report['baseline_rmse']:.4f} -> with named effects {report['final_rmse']:.4f}")
-ref = report["refinement"]["model_final"]
+print("named:", report.effects)
+print(f"RMSE plain PI {report.baseline_rmse:.4f} -> with named effects {report.final_rmse:.4f}")
+ref = report.refinement["model_final"]
 print(f"joint Levenberg-Marquardt refinement: {ref['result']} after {ref['steps']} steps, "
       f"RMSE {ref['rmse_start']:.4f} -> {ref['rmse']:.4f} (kept: {ref['kept']})")
-print("parameters:", report["parameters"])
+print("parameters:", report.parameters)
 
 # %% [markdown]
 # Each round scores every candidate on the held-out blocks; the table is the first round.
 
 # %%
-first = report["rounds"][0]
+first = report.rounds[0]
 print(f"round 1: current held-out RMSE {first['current_heldout_rmse']:.4f}")
 for name, c in sorted(first["candidates"].items(), key=lambda kv: -kv[1]["score"]):
     print(f"  {name:<16} held-out RMSE {c['heldout_rmse']:.4f}   score {c['score']:8.2f}")
 print("\nwhere the plain model disagrees most:")
-for w in [w for w in report["where"] if w["structured"]][:6]:
+for w in [w for w in report.where if w["structured"]][:6]:
     detail = (f"r = {w['correlation']:.2f}" if w["kind"] == "correlation"
               else f"{w['ratio_to_noise']:.1f}x the noise floor")
     print(f"  {w['kind']:<12} {w['name']:<24} {detail}")
@@ -82,18 +84,18 @@ for w in [w for w in report["where"] if w["structured"]][:6]:
 
 # %%
 def show(report, title):
-    a = report["_arrays"]
-    names = " + ".join(report["effects"]) or "no effect"
+    r, base, final = report.record, report.baseline_prediction, report.final_prediction
+    names = " + ".join(report.effects) or "no effect"
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.6))
-    a1.plot(a["t"], a["y"] - a["base"], lw=0.6, label=f"plain PI, RMSE {report['baseline_rmse']:.3g}")
-    a1.plot(a["t"], a["y"] - a["final"], lw=0.6, label=f"+ {names}, RMSE {report['final_rmse']:.3g}")
-    sigma = report["noise_std_estimate"]
+    a1.plot(r.t, r.y - base, lw=0.6, label=f"plain PI, RMSE {report.baseline_rmse:.3g}")
+    a1.plot(r.t, r.y - final, lw=0.6, label=f"+ {names}, RMSE {report.final_rmse:.3g}")
+    sigma = report.noise_std_estimate
     a1.axhspan(-2 * sigma, 2 * sigma, color="0.85", zorder=0, label="±2σ noise floor")
     a1.set(xlabel="t [s]", ylabel="residual y − model", title=f"{title}: residual before and after")
     a1.legend(fontsize=8)
-    a2.plot(a["u"], a["y"], lw=0.5, color="0.6", label="measured")
-    a2.plot(a["u"], a["base"], lw=0.7, label="plain PI")
-    a2.plot(a["u"], a["final"], "--", lw=0.7, label=f"+ {names}")
+    a2.plot(r.u, r.y, lw=0.5, color="0.6", label="measured")
+    a2.plot(r.u, base, lw=0.7, label="plain PI")
+    a2.plot(r.u, final, "--", lw=0.7, label=f"+ {names}")
     a2.set(xlabel="u", ylabel="y", title="loops")
     a2.legend(fontsize=8)
     fig.tight_layout()
@@ -115,20 +117,21 @@ valid = pj.load_dataset("piezo_aye2018_validation")
 if SMALL:
     ident, valid = ident.slice(0, 1000), valid.slice(0, 1000)
 real = pj.diagnose(ident, valid, **SEARCH)
-v = real["validation"]
-print("named:", real["effects"])
-print(f"noise floor {real['noise_std_estimate']:.3f} (sensor units)")
+v = real.validation
+print("named:", real.effects)
+print(f"noise floor {real.noise_std_estimate:.3f} (sensor units)")
 print(f"{'':<22}{'plain PI':>10}{'with effects':>14}")
-print(f"{'identification RMSE':<22}{real['baseline_rmse']:>10.3f}{real['final_rmse']:>14.3f}")
-print(f"{'validation RMSE':<22}{v['baseline_rmse']:>10.3f}{v['final_rmse']:>14.3f}"
-      f"   (effects used: {v['effects_used']})")
+print(f"{'identification RMSE':<22}{real.baseline_rmse:>10.3f}{real.final_rmse:>14.3f}")
+print(f"{'validation RMSE':<22}{v.baseline_rmse:>10.3f}{v.final_rmse:>14.3f}"
+      f"   (effects used: {v.effects_used})")
 show(real, "Aye identification run")
 
 # %%
-a = real["_arrays"]
+vr = v.record
 fig, ax = plt.subplots(figsize=(11, 3.4))
-ax.plot(a["val_t"], a["val_y"] - a["val_base"], lw=0.6, label=f"plain PI ({v['baseline_rmse']:.3g})")
-ax.plot(a["val_t"], a["val_y"] - a["val_final"], lw=0.6, label=f"with named effects ({v['final_rmse']:.3g})")
+ax.plot(vr.t, vr.y - v.baseline_prediction, lw=0.6, label=f"plain PI ({v.baseline_rmse:.3g})")
+ax.plot(vr.t, vr.y - v.final_prediction, lw=0.6,
+        label=f"with named effects ({v.final_rmse:.3g})")
 ax.set(xlabel="t [s]", ylabel="residual", title="validation run: a model it was not fitted to")
 ax.legend(fontsize=8)
 fig.tight_layout()

@@ -82,17 +82,14 @@ def run(args) -> int:
     check_record(rec)
     if val is not None:
         check_record(val)
-    rep = diagnose(rec, val, max_effects=args.max_effects, candidates=cands,
-                   solver=None if args.solver == "none" else args.solver, quiet=args.quiet or args.json)
-    fig = diagnosis_figure(rep)
-    del rep["_arrays"]
-    rep["data"] = str(args.data)
-    rep.update(record_fields(rec, args))
-    if val is not None:
-        rep["validation"]["data"] = str(args.validate)
+    diagnosis = diagnose(rec, val, max_effects=args.max_effects, candidates=cands,
+                         solver=None if args.solver == "none" else args.solver,
+                         quiet=args.quiet or args.json)
+    rep = _report(diagnosis, args)
+    fig = diagnosis_figure(diagnosis)
     written = [_io.write_json(out / "report.json", rep)]
     written.append(_io.save_figure(fig, out / "report.png", dpi=110))
-    written.append(_io.write_text(out / "report.md", _markdown(rep)))
+    written.append(_io.write_text(out / "report.md", _markdown(diagnosis, args.data)))
     if args.json:
         # write_json has refused any non-finite value the command does not allow, so this text
         # is report.json's.
@@ -102,51 +99,60 @@ def run(args) -> int:
     return 0
 
 
-def _markdown(rep):
-    eff = ", ".join(f"`{e}`" for e in rep["effects"]) or "none"
+def _report(diagnosis, args) -> dict:
+    """report.json: the diagnosis's `to_json()` and where its records came from."""
+    rep = diagnosis.to_json()
+    rep["data"] = str(args.data)
+    rep.update(record_fields(diagnosis.record, args))
+    if diagnosis.validation is not None:
+        rep["validation"]["data"] = str(args.validate)
+    return rep
+
+
+def _markdown(d, data):
+    """report.md: the diagnosis `d` of the record read from `data`, in words and tables."""
+    eff = ", ".join(f"`{e}`" for e in d.effects) or "none"
     lines = [
-        f"# Diagnosis of {rep['data']}",
+        f"# Diagnosis of {data}",
         "",
         f"Effects named, in order: {eff}.",
         "",
-        f"Noise floor (robust std of the residual of a local cubic fit): {rep['noise_std_estimate']:.4g}.",
+        f"Noise floor (robust std of the residual of a local cubic fit): {d.noise_std_estimate:.4g}.",
         "",
         "| | plain PI | with the named effects |",
         "|---|---|---|",
-        f"| RMSE, whole record | {rep['baseline_rmse']:.4g} | {rep['final_rmse']:.4g} |",
+        f"| RMSE, whole record | {d.baseline_rmse:.4g} | {d.final_rmse:.4g} |",
     ]
-    h = rep["heldout"]
-    if h["baseline_rmse"] is not None:
-        lines.append(f"| RMSE, held-out blocks | {h['baseline_rmse']:.4g} | {h['final_rmse']:.4g} |")
-    if "validation" in rep:
-        v = rep["validation"]
-        lines.append(f"| RMSE, validation record | {v['baseline_rmse']:.4g} | {v['final_rmse']:.4g} |")
+    lines.append(f"| RMSE, held-out blocks | {d.heldout_baseline_rmse:.4g} | {d.heldout_final_rmse:.4g} |")
+    v = d.validation
+    if v is not None:
+        lines.append(f"| RMSE, validation record | {v.baseline_rmse:.4g} | {v.final_rmse:.4g} |")
         lines.append(f"| RMSE, validation record, mean residual removed | "
-                     f"{v['baseline_rmse_offset_removed']:.4g} | {v['final_rmse_offset_removed']:.4g} |")
+                     f"{v.baseline_rmse_offset_removed:.4g} | {v.final_rmse_offset_removed:.4g} |")
         lines.append(f"| RMSE, validation record, initial conditions estimated | "
-                     f"{v['baseline_rmse_ic']:.4g} | {v['final_rmse_ic']:.4g} |")
+                     f"{v.baseline_rmse_ic:.4g} | {v.final_rmse_ic:.4g} |")
         lines.append(f"| fit %, validation record (raw / initial conditions estimated) | "
-                     f"{v['baseline_fit_percent']:.1f} / {v['baseline_fit_percent_ic']:.1f} | "
-                     f"{v['final_fit_percent']:.1f} / {v['final_fit_percent_ic']:.1f} |")
-    if rep["record_specific_effects"]:
+                     f"{v.baseline_fit_percent:.1f} / {v.baseline_fit_percent_ic:.1f} | "
+                     f"{v.final_fit_percent:.1f} / {v.final_fit_percent_ic:.1f} |")
+    if d.record_specific_effects:
         lines += ["", "Tied to this record, left out on another: "
-                  + ", ".join(f"`{e}`" for e in rep["record_specific_effects"])
+                  + ", ".join(f"`{e}`" for e in d.record_specific_effects)
                   + ". They explain this record's unrecorded past or its drift over time; another run "
                   "of the device has its own, so the model used on the validation record and for "
                   "compensation keeps only the effects driven by the input"
-                  + (": " + ", ".join(f"`{e}`" for e in rep["transferable_effects"]) if rep["transferable_effects"]
+                  + (": " + ", ".join(f"`{e}`" for e in d.transferable_effects) if d.transferable_effects
                      else " (none here)") + ".", ""]
-    if "validation" in rep:
+    if v is not None:
         lines += ["", "On the validation record, *raw* runs the model from rest; *initial conditions "
                   "estimated* fits only the output offset and the plays' and creep modes' initial "
                   "states to that record (as system identification tools compare a model with data), "
                   "everything else fixed.", ""]
-    for e, par in rep.get("parameters", {}).items():
+    for e, par in d.parameters.items():
         if par:
-            lines.append(f"- `{e}`: " + ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
-                                                    for k, v in par.items()))
+            lines.append(f"- `{e}`: " + ", ".join(f"{k} = {x:.4g}" if isinstance(x, float) else f"{k} = {x}"
+                                                    for k, x in par.items()))
     lines += ["", "## Rounds (held-out RMSE per candidate; score = penalised gain / noise variance)", ""]
-    for i, r in enumerate(rep["rounds"]):
+    for i, r in enumerate(d.rounds):
         lines.append(f"Round {i + 1}: current held-out RMSE {r['current_heldout_rmse']:.4g}; best "
                      f"`{r['best']}` ({'named' if r['named'] else 'not significant'}).")
         lines.append("")
@@ -156,7 +162,7 @@ def _markdown(rep):
             lines.append(f"| {k} | {c['heldout_rmse']:.4g} | {c['score']:.3g} | {c['significant']} |")
         lines.append("")
     lines += ["## Where the plain PI model disagrees with the data", ""]
-    for w in rep["where"]:
+    for w in d.where:
         if not w["structured"]:
             continue
         if w["kind"] == "correlation":
@@ -164,6 +170,6 @@ def _markdown(rep):
         else:
             lines.append(f"- {w['kind']} {w['name']}: RMS {w['rms']:.3g} = "
                          f"{w['ratio_to_noise']:.1f}x the noise floor")
-    if not any(w["structured"] for w in rep["where"]):
+    if not any(w["structured"] for w in d.where):
         lines.append("- nowhere: the residual is at the noise floor")
     return "\n".join(lines) + "\n"

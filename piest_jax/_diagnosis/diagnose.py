@@ -27,6 +27,7 @@ from .._progress import progress
 from . import locate as _locate
 from . import model as _model
 from . import refine as _refine
+from .diagnosis import Diagnosis, DiagnosisValidation
 from .effect import AbstractEffect
 from .effects import EFFECT, EFFECTS, chain, check_names
 from .scaling import Scaling as Scaling
@@ -395,7 +396,7 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
     return best
 
 
-def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
+def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnosis:
     """The whole workflow on one record: locate, name, and show the gap shrink.
 
     **Arguments:**
@@ -404,63 +405,68 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> dict:
     - `validation`: an optional second record of the same device, run through both models.
     - `**kwargs`: passed to `search` (`max_effects`, `candidates`, `solver`, `quiet`, ...).
 
-    **Returns:** a JSON-ready dict with `effects`, `transferable_effects` (functions of the
-    input) and `record_specific_effects` (`initial_state`, `offset_drift`: tied to this record),
-    `baseline_rmse`, `final_rmse`, `noise_std_estimate`, `candidates`, `parameters` (of the named
-    effects, after refinement), `refinement` (solver result, steps, RMSE before and after, for
-    both models), `rounds`, `where`, `heldout` and, with a validation record, `validation`:
-    `baseline_rmse`, `final_rmse` (raw: each model from rest, transferable effects only),
-    `baseline_rmse_ic`, `final_rmse_ic` (offset and initial states estimated on the validation
-    record by `evaluate_ic`), the fit percentages of both and the estimated initial conditions.
-    Arrays for plotting are under `_arrays`.
+    **Returns:** a [`Diagnosis`][piest_jax.Diagnosis]: the effects named, in order (split into
+    transferable and record-specific ones), the RMSE of the plain PI model and of the model with
+    the named effects on the whole record and on held-out blocks, the named effects' parameters
+    after refinement, how the refinement went, the search's rounds, where the plain model's
+    residual is structured, both models' predictions and, with a validation record, a
+    [`DiagnosisValidation`][piest_jax.DiagnosisValidation]: the raw RMSEs (each model from rest,
+    transferable effects only), those with the offset and initial states estimated on the
+    validation record (`evaluate_ic`), the fit percentages and the estimated initial conditions.
+    Its `to_json()`, which its mapping view reads, is `piest diagnose`'s report.json.
     """
     s = search(rec, **kwargs)
     sc, named = s["scaling"], s["effects"]
     pred_b, rmse_b = evaluate(rec, sc, s["model_base"])
     pred_f, rmse_f = evaluate(rec, sc, s["model_final"])
-    first = s["rounds"][0]["candidates"] if s["rounds"] else {}
-    out = dict(
+    checked = None
+    if validation is not None:
+        check_record(validation)
+        checked = _validate(validation, sc, s, named)
+    return Diagnosis(
+        record=rec,
         effects=named,
-        transferable_effects=[e for e in named if not EFFECT[e].record_specific],
-        record_specific_effects=[e for e in named if EFFECT[e].record_specific],
         baseline_rmse=rmse_b,
         final_rmse=rmse_f,
         noise_std_estimate=s["noise_std"],
-        candidates={k: dict(v) for k, v in first.items()},
         parameters={e: EFFECT[e].describe(s["model_final"]["cfg"][e]) for e in named},
         refinement={k: _refinement(s[k], sc) for k in ("model_base", "model_final") if "refinement" in s[k]},
         rounds=s["rounds"],
         pruned=s["pruned"],
-        heldout=dict(baseline_rmse=s["heldout_rmse_base"], final_rmse=s["heldout_rmse_final"]),
-        n_samples=rec.n_samples,
+        heldout_baseline_rmse=s["heldout_rmse_base"],
+        heldout_final_rmse=s["heldout_rmse_final"],
         search_step=s["step"],
         where=_locate.locate(rec.t, rec.u, rec.y, pred_b, s["noise_std"]),
+        baseline_prediction=pred_b,
+        final_prediction=pred_f,
+        validation=checked,
     )
-    arrays = dict(t=rec.t, u=rec.u, y=rec.y, base=pred_b, final=pred_f)
-    if validation is not None:
-        check_record(validation)
-        vb, rb = evaluate(validation, sc, s["model_base"], transferable_only=True)
-        vf, rf = evaluate(validation, sc, s["model_final"], transferable_only=True)
-        vbi, rbi, est_b = evaluate_ic(validation, sc, s["model_base"])
-        vfi, rfi, est_f = evaluate_ic(validation, sc, s["model_final"])
-        out["validation"] = dict(
-            baseline_rmse=rb, final_rmse=rf,
-            # With the validation record's own initial conditions (offset, play and creep
-            # states) estimated on it, everything else fixed: what the model predicts of a run
-            # already in motion, as system identification tools report it.
-            baseline_rmse_ic=rbi, final_rmse_ic=rfi,
-            baseline_fit_percent=float(fit_percent(validation.y, vb)),
-            final_fit_percent=float(fit_percent(validation.y, vf)),
-            baseline_fit_percent_ic=float(fit_percent(validation.y, vbi)),
-            final_fit_percent_ic=float(fit_percent(validation.y, vfi)),
-            initial_conditions=dict(baseline=est_b, final=est_f),
-            noise_std_estimate=noise_std(validation.y),
-            # The same with each model's mean residual removed: a sensor zero that moved
-            # between the two runs is no failure of either model.
-            baseline_rmse_offset_removed=float(np.std(validation.y - vb)),
-            final_rmse_offset_removed=float(np.std(validation.y - vf)),
-            effects_used=[e for e in named if not EFFECT[e].record_specific],
-        )
-        arrays.update(val_t=validation.t, val_u=validation.u, val_y=validation.y, val_base=vb, val_final=vf)
-    out["_arrays"] = arrays
-    return out
+
+
+def _validate(validation: Record, sc: Scaling, s, named) -> DiagnosisValidation:
+    """Both models of a search on a second record, raw and with its initial conditions estimated."""
+    vb, rb = evaluate(validation, sc, s["model_base"], transferable_only=True)
+    vf, rf = evaluate(validation, sc, s["model_final"], transferable_only=True)
+    vbi, rbi, est_b = evaluate_ic(validation, sc, s["model_base"])
+    vfi, rfi, est_f = evaluate_ic(validation, sc, s["model_final"])
+    return DiagnosisValidation(
+        record=validation,
+        baseline_rmse=rb, final_rmse=rf,
+        # With the validation record's own initial conditions (offset, play and creep
+        # states) estimated on it, everything else fixed: what the model predicts of a run
+        # already in motion, as system identification tools report it.
+        baseline_rmse_ic=rbi, final_rmse_ic=rfi,
+        baseline_fit_percent=float(fit_percent(validation.y, vb)),
+        final_fit_percent=float(fit_percent(validation.y, vf)),
+        baseline_fit_percent_ic=float(fit_percent(validation.y, vbi)),
+        final_fit_percent_ic=float(fit_percent(validation.y, vfi)),
+        initial_conditions=dict(baseline=est_b, final=est_f),
+        noise_std_estimate=noise_std(validation.y),
+        # The same with each model's mean residual removed: a sensor zero that moved
+        # between the two runs is no failure of either model.
+        baseline_rmse_offset_removed=float(np.std(validation.y - vb)),
+        final_rmse_offset_removed=float(np.std(validation.y - vf)),
+        effects_used=[e for e in named if not EFFECT[e].record_specific],
+        baseline_prediction=vb,
+        final_prediction=vf,
+    )
