@@ -171,5 +171,5 @@ def _band(layout, theta, cov, u, s, x0, z0, dt, chunk: int):
         # diag(Jᵀ Σ J) for this chunk's columns of J (p, m): a row-wise quadratic form.
         return (after, dafter), (pred, jnp.sum(J * (cov @ J), axis=0))
 
-    _, (pred, var) = lax.scan(body, (s0, ds0), _cov._chunked(u, u[-1], chunk))
+    _, (pred, var) = lax.scan(body, (s0, ds0), _cov.chunked(u, u[-1], chunk))
     return pred.reshape(-1)[:T], var.reshape(-1)[:T]

@@ -134,7 +134,8 @@ def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
     return predict(theta), jax.jacfwd(predict)(theta)
 
 
-def _chunked(a, fill, chunk):
+def chunked(a, fill, chunk):
+    """`a` (T,) padded with `fill` to a multiple of `chunk` and shaped (chunks, chunk)."""
     pad = -a.shape[0] % chunk
     if pad:
         a = jnp.concatenate([a, jnp.full(pad, fill, a.dtype)])
@@ -195,8 +196,8 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     """
     p = theta.shape[0]
     T = u.shape[0]
-    data = (_chunked(u, u[-1], chunk), _chunked(y, 0.0, chunk), _chunked(mask, 0.0, chunk),
-            _chunked(jnp.arange(T), T, chunk))
+    data = (chunked(u, u[-1], chunk), chunked(y, 0.0, chunk), chunked(mask, 0.0, chunk),
+            chunked(jnp.arange(T), T, chunk))
     s0, ds0, rows = chunk_rows(run, layout, theta, s, x0, z0, dt)
 
     def body(carry, ch):
