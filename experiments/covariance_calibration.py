@@ -11,6 +11,10 @@ AR(1) with ρ = 0.95 (the same marginal σ), like a measured record's model erro
 Gauss-Newton σ²(JᵀJ)⁻¹ assumes independent samples and comes out too small, while the Newey-West
 sandwich (piest_jax's default) stays close.
 
+The prediction bands (`pj.prediction_band`) are checked the same way: over the draws, the
+fraction of samples where the 95 % band of the mean prediction holds the noiseless output, and
+where the 95 % measurement band holds a fresh noisy output (a second draw of the same noise).
+
 Writes experiments/results/covariance_calibration.json and covariance_calibration.png.
 Run: python experiments/covariance_calibration.py [--draws N]
 """
@@ -47,14 +51,19 @@ def run(draws: int, T: int = 300):
     truth = np.concatenate([R[1:], W, [C]])
     results = {}
     for kind in ("white", "ar1"):
-        e = noise(kind, np.random.default_rng(2026), (draws, T), 0.01 * np.ptp(y0))
+        rng = np.random.default_rng(2026)
+        e = noise(kind, rng, (draws, T), 0.01 * np.ptp(y0))
+        fresh = noise(kind, rng, (draws, T), 0.01 * np.ptp(y0))
         for method in METHODS:
             start = time.perf_counter()
-            est, se = [], []
+            est, se, mean_cover, new_cover = [], [], [], []
             for k in range(draws):
                 f = pj.fit_pi(u, y0 + e[k], 3, thresholds0=R, n_starts=1, covariance=method)
                 est.append(np.asarray(f.parameter_values))
                 se.append(np.asarray(f.std_errors))
+                band = pj.prediction_band(f, u)
+                mean_cover.append(band.coverage(y0, measurement=False))
+                new_cover.append(band.coverage(y0 + fresh[k]))
             est, se = np.array(est), np.array(se)
             spread = est.std(axis=0, ddof=1)
             covered = np.abs(est - truth) <= 1.96 * se
@@ -64,9 +73,15 @@ def run(draws: int, T: int = 300):
                 "spread": spread,
                 "ratio": se.mean(axis=0) / spread,
                 "coverage_95": covered.mean(axis=0),
+                # Fractions of samples (over all draws) inside the 95 % bands, and their spread
+                # over the draws.
+                "band_coverage_mean": float(np.mean(mean_cover)),
+                "band_coverage_mean_draw_range": [float(np.min(mean_cover)), float(np.max(mean_cover))],
+                "band_coverage_measurement": float(np.mean(new_cover)),
                 "seconds": time.perf_counter() - start,
             }
-            print(kind, method, np.round(se.mean(axis=0) / spread, 3), np.round(covered.mean(axis=0), 3))
+            print(kind, method, np.round(se.mean(axis=0) / spread, 3), np.round(covered.mean(axis=0), 3),
+                  "bands:", round(float(np.mean(mean_cover)), 3), round(float(np.mean(new_cover)), 3))
     return results
 
 
@@ -76,7 +91,7 @@ def figure(results):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4), gridspec_kw={"width_ratios": [3, 3, 2]})
     for ax, kind in zip(axes, ("white", "ar1")):
         for i, method in enumerate(METHODS):
             r = results[f"{kind}/{method}"]
@@ -88,6 +103,18 @@ def figure(results):
         ax.set(title=f"{'white noise' if kind == 'white' else 'AR(1) noise, rho = 0.95'}",
                ylabel="predicted std error / observed spread")
         ax.legend(fontsize=8)
+    # The bands' coverage: mean prediction (noiseless output) and new measurement, per noise.
+    ax = axes[2]
+    labels = [f"{k}\n{b}" for k in ("white", "ar1") for b in ("mean", "measurement")]
+    for i, method in enumerate(METHODS):
+        cov = [results[f"{k}/{method}"][f"band_coverage_{b}"] for k in ("white", "ar1")
+               for b in ("mean", "measurement")]
+        ax.bar(np.arange(4) + (i - 0.5) * 0.35, cov, width=0.35, label=method)
+    ax.axhspan(0.90, 0.98, color="0.9", zorder=0, label="0.90-0.98")
+    ax.axhline(0.95, color="k", lw=0.6)
+    ax.set_xticks(np.arange(4), labels, fontsize=8)
+    ax.set(ylim=(0, 1.05), title="95 % prediction bands", ylabel="fraction of samples inside")
+    ax.legend(fontsize=8, loc="lower left")
     fig.tight_layout()
     return fig
 

@@ -101,6 +101,8 @@ _EXPORTS = {
     "Validation": ("._identification.identify", "Validation"),
     "identify": ("._identification.identify", "identify"),
     "fit_figure": ("._identification.figures", "fit_figure"),
+    "PredictionBand": ("._identification.band", "PredictionBand"),
+    "prediction_band": ("._identification.band", "prediction_band"),
     "compensation_figure": ("._identification.figures", "compensation_figure"),
     # model components
     "Creep": ("._models.creep", "Creep"),
@@ -220,6 +222,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.signals import sine as sine
     from ._excitation.signals import time_grid as time_grid
     from ._excitation.signals import triangle as triangle
+    from ._identification.band import PredictionBand as PredictionBand
+    from ._identification.band import prediction_band as prediction_band
     from ._identification.compare import Comparison as Comparison
     from ._identification.compare import compare as compare
     from ._identification.compare import fit_percent as fit_percent

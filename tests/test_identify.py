@@ -48,6 +48,34 @@ def test_cli_fit_json_is_identify_to_json(tmp_path, capsys):
     assert alone == {k: v for k, v in written.items() if not k.startswith("valid")}
 
 
+def test_validation_reports_the_band_coverage(tmp_path):
+    # White noise on a known 3-play model: the validation record's samples fall inside the raw
+    # and the IC prediction's 95 % measurement bands about 95 % of the time; the bands are those
+    # of the predictions reported, and the coverage is counted from them.
+    rng = np.random.default_rng(11)
+
+    def record(path, n, phase):
+        t = np.arange(n) * 0.005
+        u = np.sin(2 * np.pi * 2 * t + phase) * (1 + 0.3 * np.sin(2 * np.pi * 0.3 * t))
+        y = ref.play(u, R, u[0]) @ W + OFFSET + 0.01 * rng.standard_normal(n)
+        np.savetxt(path, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+        return pj.load_record(path)
+
+    rec, val = record(tmp_path / "d.csv", 400, 0.0), record(tmp_path / "v.csv", 400, 1.0)
+    result = pj.identify(rec, val, model="pi", plays=3, starts=2)
+    v = result.validation
+    np.testing.assert_allclose(v.raw_band.prediction, v.raw.prediction, atol=1e-10)
+    np.testing.assert_allclose(v.ic_band.prediction, v.ic.prediction, atol=1e-10)
+    report = result.to_json()
+    for key, band in (("validation_band_coverage", v.raw_band), ("validation_band_coverage_ic", v.ic_band)):
+        lower, upper = (np.asarray(b) for b in band.interval(0.95))
+        assert report[key] == np.mean((val.y >= lower) & (val.y <= upper))
+        assert 0.9 <= report[key] <= 0.99, (key, report[key])
+    fig = pj.fit_figure(val, v.raw.prediction, title="validation", band=v.raw_band.interval())
+    assert any(f"{100 * report['validation_band_coverage']:.1f} % inside" in t.get_text()
+               for t in fig.axes[1].get_legend().get_texts())
+
+
 def test_the_selection_is_typed_and_reported(tmp_path, capsys):
     rec = _record(tmp_path / "d.csv", 300)
     result = pj.identify(rec, model="pi", candidates=[2, 3], starts=2)

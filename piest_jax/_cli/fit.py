@@ -5,6 +5,7 @@ import sys
 
 import numpy as np
 
+from .._identification.band import prediction_band
 from .._identification.covariance import table as parameter_table
 from .._identification.figures import fit_figure
 from .._identification.fit import SOLVERS
@@ -41,9 +42,14 @@ z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. 
                        --validate: validation_rmse (raw: the model run on VAL.csv from the
                        states named in validation_initial_states), validation_starts_at_rest,
                        validation_rmse_ic and validation_fit_percent (with VAL.csv's own output
-                       offset and initial play and lag states estimated, nothing else)
+                       offset and initial play and lag states estimated, nothing else),
+                       validation_band_coverage and validation_band_coverage_ic (the fraction
+                       of VAL.csv's samples inside the raw and the IC prediction's 95 %
+                       measurement band: the parameters' covariance through the model's
+                       Jacobian on VAL.csv, plus the residuals' variance; 0.95 if calibrated)
   DIR/fit.md           the parameters as a value +- std error table (also on stderr)
-  DIR/fit.png          the measured and fitted loops and the residual over time
+  DIR/fit.png          the measured and fitted loops and the residual over time, with the
+                       95 % measurement band shaded
   DIR/validation.png   the same for --validate VAL.csv (raw prediction)
 Thresholds at or above half the input's peak-to-peak range cannot be excited and are flagged.
 Standard errors are Newey-West (sandwich) estimates from the Jacobian at the solution, honest
@@ -233,11 +239,14 @@ def run(args) -> int:
     table = parameter_table(f)
     written = [_io.write_json(out / "fit.json", {**result.to_json(), **record_fields(rec, args)}),
                _io.write_text(out / "fit.md", _markdown(result, table)),
-               _io.save_figure(fit_figure(rec, np.asarray(f(rec.u)), title="fit", mask=result.mask),
+               _io.save_figure(fit_figure(rec, np.asarray(f(rec.u)), title="fit", mask=result.mask,
+                                          band=prediction_band(f, rec.u).interval()),
                                out / "fit.png", dpi=110)]
-    if result.validation is not None:
-        prediction = np.asarray(result.validation.raw.prediction)
-        written.append(_io.save_figure(fit_figure(val, prediction, title="validation"),
+    v = result.validation
+    if v is not None:
+        band = None if v.raw_band is None else v.raw_band.interval()
+        written.append(_io.save_figure(fit_figure(val, np.asarray(v.raw.prediction), title="validation",
+                                                  band=band),
                                        out / "validation.png", dpi=110))
     print(table, end="", file=sys.stderr)
     if f.undetermined_names:

@@ -119,6 +119,8 @@ def _natural(layout: Layout, theta, s: Scales, x0, z0, dt):
     return (r, w, c0, x, *lags)
 
 
+# Compiled once per shape: run eagerly, `jacfwd` through the scan would compile it on every call.
+@eqx.filter_jit
 def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
     """The model's output (T,) in the data's units and its Jacobian (T, p) at `theta`.
 
@@ -132,11 +134,48 @@ def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
     return predict(theta), jax.jacfwd(predict)(theta)
 
 
-def _chunked(a, fill, chunk):
+def chunked(a, fill, chunk):
+    """`a` (T,) padded with `fill` to a multiple of `chunk` and shaped (chunks, chunk)."""
     pad = -a.shape[0] % chunk
     if pad:
         a = jnp.concatenate([a, jnp.full(pad, fill, a.dtype)])
     return a.reshape(-1, chunk)
+
+
+def chunk_rows(run, layout: Layout, theta, s: Scales, x0, z0, dt):
+    """The model run chunk by chunk with its forward-mode sensitivities to `theta`.
+
+    **Returns:** `(states, dstates, rows)`: the plays' (and lags') states before the first
+    sample, their sensitivities (one per parameter, leading axis), and `rows(states, dstates,
+    uu) -> (prediction, states_after, J, dstates_after)` for a chunk `uu` (m,): the output in the
+    data's units, the states after it, J (p, m) (the Jacobian's rows, transposed) and the
+    sensitivities after it. Chaining `rows` over consecutive chunks gives the exact Jacobian of
+    the whole run with only one chunk's rows in memory.
+    """
+
+    def start(th):
+        nat = _natural(layout, th, s, x0, z0, dt)
+        return nat[3], (nat[6] if layout.k else None)
+
+    def chunk_model(th, states, uu):
+        r, w, c0, _, *lags = _natural(layout, th, s, x0, z0, dt)
+        x, z = states
+        args = (lags[0], lags[1], z) if layout.k else ()
+        pred, after = run(uu, r, w, c0, x, *args, final=True)
+        return s.y_mid + s.y_half * pred, after
+
+    eye = jnp.eye(theta.shape[0], dtype=theta.dtype)
+
+    def rows(states, dstates, uu):
+        def tangent(t, d):
+            return jax.jvp(lambda th, sv: chunk_model(th, sv, uu), (theta, states), (t, d))
+
+        (pred, after), (J, dafter) = jax.vmap(tangent, out_axes=(None, 0))(eye, dstates)
+        return pred, after, J, dafter
+
+    s0 = start(theta)
+    ds0 = jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0), jax.jacfwd(start)(theta))
+    return s0, ds0, rows
 
 
 @eqx.filter_jit
@@ -157,32 +196,14 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     """
     p = theta.shape[0]
     T = u.shape[0]
-    data = (_chunked(u, u[-1], chunk), _chunked(y, 0.0, chunk), _chunked(mask, 0.0, chunk),
-            _chunked(jnp.arange(T), T, chunk))
-
-    def start(th):
-        nat = _natural(layout, th, s, x0, z0, dt)
-        return nat[3], (nat[6] if layout.k else None)
-
-    def chunk_model(th, states, uu):
-        r, w, c0, _, *lags = _natural(layout, th, s, x0, z0, dt)
-        x, z = states
-        args = (lags[0], lags[1], z) if layout.k else ()
-        pred, after = run(uu, r, w, c0, x, *args, final=True)
-        return s.y_mid + s.y_half * pred, after
-
-    s0 = start(theta)
-    ds0 = jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0), jax.jacfwd(start)(theta))
-    eye = jnp.eye(p, dtype=theta.dtype)
+    data = (chunked(u, u[-1], chunk), chunked(y, 0.0, chunk), chunked(mask, 0.0, chunk),
+            chunked(jnp.arange(T), T, chunk))
+    s0, ds0, rows = chunk_rows(run, layout, theta, s, x0, z0, dt)
 
     def body(carry, ch):
         states, dstates, tail, JtJ, blocks, ete = carry
         uu, yy, mm, ii = ch
-
-        def tangent(t, d):
-            return jax.jvp(lambda th, sv: chunk_model(th, sv, uu), (theta, states), (t, d))
-
-        (pred, after), (J, dafter) = jax.vmap(tangent, out_axes=(None, 0))(eye, dstates)
+        pred, after, J, dafter = rows(states, dstates, uu)
         J = J * mm[None, :]
         e = (yy - pred) * mm
         cum = jnp.concatenate([tail, tail[-1] + jnp.cumsum((J * e[None, :]).T, axis=0)])
@@ -346,21 +367,21 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, la
     names, index = layout.names(n_plays, n_lags)
     eps = np.finfo(un.dtype).eps
     if int(used.sum()) > LONG_RECORD:
-        cov, se, deficient = _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
-                                                 index, eps, CHUNK)
+        cov, se, deficient, info = _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0,
+                                                       z0, dt, index, eps, CHUNK)
     else:
         pred, J = jacobian(run, layout, theta, un, s, x0, z0, dt)
         m = np.asarray(mask)[used]
         y = np.asarray(yn)[used] * yh + ym
         Ju = np.asarray(J)[used][:, index] * m[:, None]
         e = (y - np.asarray(pred)[used]) * m
-        cov, se, deficient, _ = estimate(Ju, e, method=method, eps=eps)
+        cov, se, deficient, info = estimate(Ju, e, method=method, eps=eps)
     values = theta[index]
     scale = scales(names, values, uh, yh)
     undetermined = deficient | ~(se < RELATIVE_LIMIT * scale)
     return dict(parameter_names=names, parameter_values=jnp.asarray(values), covariance=jnp.asarray(cov),
                 std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
-                covariance_method=method)
+                covariance_method=method, residual_std=jnp.asarray(info["sigma"], theta.dtype))
 
 
 def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt, index, eps, chunk):
@@ -377,9 +398,8 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
         window = bandwidth(e)
     JtJ, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
     JtJ, blocks = np.asarray(JtJ)[np.ix_(index, index)], np.asarray(blocks)[np.ix_(index, index)]
-    cov, se, deficient, _ = estimate_moments(JtJ, blocks, float(ete), int(used.sum()), method=method,
-                                             window=window, eps=eps)
-    return cov, se, deficient
+    return estimate_moments(JtJ, blocks, float(ete), int(used.sum()), method=method, window=window,
+                            eps=eps)
 
 
 def play_flags(names, undetermined, n_plays):

@@ -81,6 +81,9 @@ class PIFit(eqx.Module):
       determined combinations (finite). None when the fit was asked for no covariance.
     - `undetermined` (p,) bool: parameters the record does not determine (the Jacobian's
       numerical rank, or a standard error beyond half the parameter's scale).
+    - `residual_std`: σ = sqrt(Σe²/(N − p)) over the N fitted samples, the residuals' standard
+      deviation the covariance uses (and a new measurement's band adds, see
+      [`prediction_band`][]); None with no covariance.
     """
 
     thresholds: Thresholds
@@ -99,6 +102,7 @@ class PIFit(eqx.Module):
     std_errors: Float[Array, " params"] | None = None
     undetermined: Bool[Array, " params"] | None = None
     covariance_method: str | None = eqx.field(static=True, default=None)
+    residual_std: Scalar | None = None
 
     @property
     def undetermined_names(self) -> tuple:

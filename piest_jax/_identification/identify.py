@@ -17,6 +17,7 @@ import dataclasses
 import numpy as np
 
 from .._data.record import Record
+from .band import PredictionBand, prediction_band
 from .compare import Comparison, compare
 from .fit import PIFit, fit_pi
 from .model_file import model_keys
@@ -42,6 +43,8 @@ class Validation:
     - `starts_at_rest`: whether the record's input starts at rest (see `starts_at_rest`); when
       it does not, `raw` depends on states the record does not show.
     - `state_convention`: the states `raw` starts from, in words.
+    - `raw_band`, `ic_band`: the 95 % [`prediction_band`][]s of `raw` and `ic` (the IC
+      estimate's states and offset taken as known), or None for a fit without a covariance.
     """
 
     record: Record
@@ -49,6 +52,18 @@ class Validation:
     ic: Comparison
     starts_at_rest: bool
     state_convention: str
+    raw_band: PredictionBand | None = None
+    ic_band: PredictionBand | None = None
+
+    @property
+    def band_coverage(self) -> float | None:
+        """The fraction of the record's samples inside `raw`'s 95 % measurement band."""
+        return None if self.raw_band is None else self.raw_band.coverage(self.record.y)
+
+    @property
+    def band_coverage_ic(self) -> float | None:
+        """The same for the prediction with the record's initial conditions estimated."""
+        return None if self.ic_band is None else self.ic_band.coverage(self.record.y)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,6 +155,9 @@ class Identification:
             report["validation_rmse"] = float(v.raw.rmse)
             report["validation_rmse_ic"] = float(v.ic.rmse)
             report["validation_fit_percent"] = float(v.ic.fit_percent)
+            if v.raw_band is not None:
+                report["validation_band_coverage"] = v.band_coverage
+                report["validation_band_coverage_ic"] = v.band_coverage_ic
         return report
 
 
@@ -352,7 +370,14 @@ def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Va
     m = fit.model().with_initial_states(states)
     raw = compare(m, val.u, val.y, estimate_initial=False)
     ic = compare(m, val.u, val.y, estimate_initial=True)
-    return Validation(val, raw, ic, starts_at_rest(val.u), convention)
+    raw_band = ic_band = None
+    if fit.covariance is not None:
+        # Fitted states keep their uncertainty; states given or taken from the record are known.
+        raw_band = prediction_band(fit, val.u, initial_states=None if fit_initial_states else states)
+        e = ic.model
+        ic_band = prediction_band(fit, val.u, initial_states=e.pi.initial_states, offset=e.offset,
+                                  lag_states=None if e.creep is None else e.creep.initial_states)
+    return Validation(val, raw, ic, starts_at_rest(val.u), convention, raw_band, ic_band)
 
 
 def fit_mask(record: Record, fit_from) -> np.ndarray | None:

@@ -39,6 +39,7 @@ from .._models.creep import decays, lag_step
 from .._operators.play import play_step
 from .._progress import bar as _bar
 from . import fit as _fit
+from .covariance import chunked as chunked
 from .time_constants import lag_log_tau
 
 # Samples per chunk: it divides every padded length from 2^15 samples on (see
@@ -62,14 +63,6 @@ class Settings(eqx.Module):
     x0: jax.Array
     z0: jax.Array | None
     lag_base: jax.Array | None = None
-
-
-def chunked(a, fill, chunk=CHUNK):
-    """`a` (T,) padded with `fill` to a multiple of `chunk` and shaped (chunks, chunk)."""
-    pad = -a.shape[0] % chunk
-    if pad:
-        a = jnp.concatenate([a, jnp.full(pad, fill, a.dtype)])
-    return a.reshape(-1, chunk)
 
 
 def _start_states(params, st: Settings):
