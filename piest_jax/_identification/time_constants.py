@@ -10,11 +10,11 @@ lags' log time constants (in samples) as
 
     log τ_k = b_k + Σ_{j<=k} θ_j²,      b_k = log τ_min + k log ρ,
 
-which keeps them ordered, each at least `LAG_RATIO` (ρ, half a decade) above the one before,
+which keeps them ordered, each at least `LAG_RATIO` (ρ = √10, half a decade) times the one before,
 and the fastest at least τ_min, for every value of θ. (Squares rather than softplus: a
 lag that the data push onto its bound sits at θ = 0, a point the solver reaches, where a softplus
 would send θ towards -∞ and the solver would run out of steps.) τ_min is
-[`shortest_time_constant`][]: a quarter of the input's mean reversal period over 2π, so that at
+[`shortest_time_constant`][]: a quarter of 1/ω, ω the input's mean reversal frequency, so that at
 the rate the input reverses a lag keeps ωτ ≥ 1/4 (and at least `MIN_SAMPLES` samples). Slow lags
 are not bounded above: one slower than the record looks like an offset, and the covariance (its
 standard error against its value) names it undetermined.
