@@ -90,6 +90,8 @@ def test_select_model_keeps_plain_pi_without_creep():
     y = reference_pi(u, R, W, u[0]) + 0.3 + 1e-3 * np.random.default_rng(4).standard_normal(T)
     ch = pj.select_model(u, y, DT, plays=(2, 3, 4), lags=(0, 1, 2), key=jax.random.key(0))
     assert ch.structure == "pi" and ch.n_lags == 0 and ch.fit.creep is None
+    # One lag that does not improve does not end the search: two lags are tried as well.
+    assert {(ch.n_plays, 1), (ch.n_plays, 2)} <= set(ch.candidates)
 
 
 def test_bad_lag_arguments():

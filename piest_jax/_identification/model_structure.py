@@ -11,8 +11,10 @@ one whose whole-record fit does (the next in line is taken then).
 
 The search is coordinate-wise, to keep the number of fits small (each costs a full nonlinear
 fit): (1) the play count with the fewest lags offered (none by default), as [`select_plays`][]
-does; (2) the lag count at that play count, from the fewest up, stopping at the first that does
-not improve. The play count is not searched again with the chosen lags: that would double the
+does; (2) the lag count at that play count, from the fewest up, stopping after `patience` in a
+row that do not improve (an undetermined candidate counts as not improving, but does not end the
+search by itself: one lag fitted to a creep of two modes can land on a poorly determined
+compromise that two lags resolve). The play count is not searched again with the chosen lags: that would double the
 cost, and a creep rarely makes plays that improved the held-out error useless. Every candidate
 is padded to the largest play and lag counts on records of up to `SHARED_UP_TO` samples, so that
 all share one compilation.
@@ -149,7 +151,7 @@ def select_model(
 
     k_base = lags[0]
     n, _ = search(plays, patience, lambda v: (v, k_base))
-    n, k = search(lags, 1, lambda v: (n, v))
+    n, k = search(lags, patience, lambda v: (n, v))
     if hasattr(bar, "close"):
         bar.close()
     while True:
