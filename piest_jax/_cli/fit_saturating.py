@@ -12,6 +12,7 @@ import numpy as np
 
 from .._identification.fit_gpi import fit_gpi
 from .._identification.fit_preisach import fit_preisach
+from .._identification.identify import input_extent
 from .._identification.model_file import model_keys
 from . import memory
 from . import output as _io
@@ -129,10 +130,7 @@ def run(args, rec, val, mask, out) -> int:
         **record_fields(rec, args),
         **details,
         "rmse": rmse,
-        "input_half_range": 0.5 * float(np.ptp(rec.u)),
-        # Where the model has seen data: `piest compensate` reports inputs outside it.
-        "input_range": [float(rec.u.min()), float(rec.u.max())],
-        "n_fitted_samples": rec.n_samples if mask is None else int(mask.sum()),
+        **input_extent(rec, mask),
     }
     if args.fit_from is not None:
         report["fit_from"] = args.fit_from

@@ -339,7 +339,7 @@ def scales(names, values, u_half, y_half):
 
 
 def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, lag_base, fit_states,
-               n_plays, n_lags, positive_weights=False) -> dict:
+               n_plays, n_lags, positive_weights) -> dict:
     """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
     padded; `r`, `w` its thresholds and weights): the Jacobian over every padded parameter (one
     compilation per padded shape), then the columns of the parameters in use."""

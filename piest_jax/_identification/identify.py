@@ -124,10 +124,7 @@ class Identification:
                 "steps": f.n_steps,
                 "start_rmse": f.start_rmse,
             },
-            "input_half_range": 0.5 * float(np.ptp(rec.u)),
-            # Where the model has seen data: `piest compensate` reports inputs outside it.
-            "input_range": [float(rec.u.min()), float(rec.u.max())],
-            "n_fitted_samples": rec.n_samples if mask is None else int(mask.sum()),
+            **input_extent(rec, mask),
             "std_errors": dict(zip(f.parameter_names, f.std_errors)),
             "covariance": {"method": f.covariance_method, "parameter_names": f.parameter_names,
                            "matrix": f.covariance},
@@ -378,6 +375,14 @@ def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Va
         ic_band = prediction_band(fit, val.u, initial_states=e.pi.initial_states, offset=e.offset,
                                   lag_states=None if e.creep is None else e.creep.initial_states)
     return Validation(val, raw, ic, starts_at_rest(val.u), convention, raw_band, ic_band)
+
+
+def input_extent(record: Record, mask) -> dict:
+    """fit.json's `input_half_range`, `input_range` (where the model has seen data: `piest
+    compensate` reports inputs outside it) and `n_fitted_samples`, for any fitted model."""
+    return {"input_half_range": 0.5 * float(np.ptp(record.u)),
+            "input_range": [float(record.u.min()), float(record.u.max())],
+            "n_fitted_samples": record.n_samples if mask is None else int(mask.sum())}
 
 
 def fit_mask(record: Record, fit_from) -> np.ndarray | None:
