@@ -22,3 +22,29 @@ def rng():
     import numpy as np
 
     return np.random.default_rng(12345)
+
+
+def _memory_maps() -> tuple[int, int] | None:
+    """(this process's memory mappings, the kernel's limit on them), where Linux tells."""
+    try:
+        with open("/proc/self/maps") as f:
+            count = sum(1 for _ in f)
+        with open("/proc/sys/vm/max_map_count") as f:
+            return count, int(f.read())
+    except (OSError, ValueError):
+        return None
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _bounded_compiled_programs():
+    """Free the compiled programs of a test file once they take a third of the mapping limit.
+
+    Each compiled XLA CPU program holds about three memory mappings for its code and data, and JAX
+    keeps every program it compiled for the life of the process. A test worker compiles thousands
+    (every test builds its own shapes and settings), and at the kernel's limit on mappings (65530
+    by default) the next compilation fails to map its code and the worker dies in the compiler.
+    """
+    yield
+    maps = _memory_maps()
+    if maps is not None and maps[0] > maps[1] // 3:
+        jax.clear_caches()

@@ -105,6 +105,8 @@ def test_the_selection_is_typed_and_reported(tmp_path, capsys):
         (dict(model="creep"), "unknown `model` 'creep'"),
         (dict(plays=0), "`plays` must be a positive whole number or 'auto'"),
         (dict(candidates=[2, 2]), "`candidates` must be distinct positive whole numbers"),
+        (dict(lags=0), "`lags` must be distinct positive whole numbers, got 0"),
+        (dict(lags=1.5), r"`lags` must be a whole number or a list of them, got 1.5"),
         (dict(fit_from=99.0), r"d.csv: no sample at or after `fit_from` 99 \(the record ends at t = 0.195\)"),
         (dict(fit_from=float("nan")), "`fit_from` must be a finite time"),
         (dict(time_constants=[-1.0]), "`time_constants`: -1 is not positive"),
@@ -145,3 +147,12 @@ def test_a_constant_input_and_other_records_are_refused(tmp_path):
         pj.identify(flat, plays=2)
     with pytest.raises(ValueError, match="`record` must be a Record"):
         pj.identify((rec.u, rec.y), plays=2)
+
+
+def test_one_count_is_a_list_of_one(tmp_path):
+    from piest_jax._identification.identify import plan
+
+    rec = _record(tmp_path / "d.csv", 400)
+    one = plan(rec, model="pi+creep", plays=2, lags=1)
+    assert one.lags == plan(rec, model="pi+creep", plays=2, lags=[1]).lags == (1,)
+    assert plan(rec, candidates=np.int64(3)).plays == plan(rec, candidates=[3]).plays == (3,)

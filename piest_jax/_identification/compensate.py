@@ -24,6 +24,7 @@ i.e. what an engineer who ignores hysteresis but knows the gain and offset would
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
@@ -56,9 +57,13 @@ def admissible_states(thresholds, states) -> Array:
     **Returns:** (n,) admissible states, equal to `states` when they already are.
     """
     r = jnp.asarray(thresholds)
-    x = jnp.broadcast_to(jnp.asarray(states, r.dtype), r.shape)
+    return _admissible(r, jnp.broadcast_to(jnp.asarray(states, r.dtype), r.shape))
 
-    # One scan, not a Python loop of n dispatches (which took a minute for 20,000 plays).
+
+# One scan, not a Python loop of n dispatches (which took a minute for 20,000 plays); jitted at
+# module level so that repeat calls reuse the compiled program.
+@jax.jit
+def _admissible(r: Array, x: Array) -> Array:
     def step(prev, xd):
         xi, d = xd
         new = jnp.clip(xi, prev - d, prev + d)

@@ -222,10 +222,19 @@ def check_options(*, model="auto", plays="auto", lags=None, time_constants=None,
                          f"(`model` {model} chooses by held-out error)")
     for name, values in (("candidates", candidates), ("lags", lags)):
         if values is not None:
-            v = list(values)
+            try:
+                v = list(_counts(values))
+            except TypeError:
+                raise ValueError(f"`{name}` must be a whole number or a list of them, got "
+                                 f"{values!r}") from None
             if not v or any(not isinstance(c, int | np.integer) or isinstance(c, bool) or c < 1
                             for c in v) or len(set(v)) != len(v):
                 raise ValueError(f"`{name}` must be distinct positive whole numbers, got {values!r}")
+
+
+def _counts(values) -> tuple:
+    """A count or an iterable of counts, as a tuple (one whole number means just that one)."""
+    return (values,) if isinstance(values, int | np.integer) else tuple(values)
 
 
 def plan(record: Record, *, model="auto", plays="auto", lags=None, time_constants=None,
@@ -246,8 +255,8 @@ def plan(record: Record, *, model="auto", plays="auto", lags=None, time_constant
                          "no play, so there is nothing to fit")
     mask = fit_mask(record, fit_from)
     n_used = record.n_samples if mask is None else int(mask.sum())
-    candidates = tuple(candidates or CANDIDATES)
-    lag_counts = tuple(lags or LAGS)
+    candidates = _counts(candidates or CANDIDATES)
+    lag_counts = _counts(lags or LAGS)
     if time_constants is not None:
         time_constants = tuple(float(tau) for tau in time_constants)
         _check_time_constants(time_constants, record)
@@ -305,9 +314,9 @@ def identify(
     - `plays`: the number of plays, or `"auto"` to choose it among `candidates` (default
       1, 2, 3, 4, 5, 6, 8, 10) by `criterion` (`"holdout"`, the default, or `"bic"` with
       `model="pi"`); candidates the record is too short for are left out.
-    - `lags`: the creep lag counts tried (default 1, 2, 3); `time_constants`: starting time
-      constants instead (their count fixes the lags), each between the sampling interval and
-      100 times the record's duration.
+    - `lags`: the creep lag count, or the counts tried (default 1, 2, 3); `time_constants`:
+      starting time constants instead (their count fixes the lags), each between the sampling
+      interval and 100 times the record's duration.
     - `fit_from`: fit only the samples at time >= `fit_from` (the earlier ones still drive the
       plays), or None.
     - `solver`, `key`, `starts` (`n_starts`), `positive_weights`, `initial_states`,

@@ -18,7 +18,10 @@ recurrence is linear, so besides the sequential scan it also follows from `lax.a
 on the affine maps z -> a z + b.
 """
 
+import functools
+
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
@@ -41,6 +44,8 @@ def lag_step(z: Array, u: Array, a: Array) -> Array:
     return a * z + (1.0 - a) * u
 
 
+# Jitted at module level so that eager calls with the same shapes reuse one compiled program.
+@functools.partial(jax.jit, static_argnames="method")
 def lag_states(u: Array, a: Array, z0: Array, *, method: str = "scan") -> Array:
     """The lags' states (T, K) for an input `u` (T,), decays `a` (K,) and initial states `z0` (K,).
 

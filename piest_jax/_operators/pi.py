@@ -3,6 +3,7 @@
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array
@@ -11,6 +12,18 @@ from .. import _checks
 from .._custom_types import Regressor, Signal, SignalLike, States, Thresholds, Weights
 from .inverse import inverse_parameters
 from .play import METHODS, Method, _bank, _uses_kernel, play_step
+
+
+# Jitted at module level so that eager calls with the same shapes reuse one compiled program (an
+# eager scan over a fresh closure would compile, and keep, a new one on every call).
+@jax.jit
+def _pi_scan(u: Array, r: Array, w: Array, x0: Array) -> Array:
+    def step(x, ut):
+        x = play_step(x, ut, r)
+        return x, jnp.dot(w, x)
+
+    _, y = lax.scan(step, x0, u)
+    return y
 
 
 class AbstractHysteresisOperator(eqx.Module):
@@ -103,14 +116,7 @@ class PIOperator(AbstractHysteresisOperator):
 
             if _kernel.use_kernel(self.method):
                 return _kernel.pi_output(u, self.thresholds, self.initial_states, self.weights)
-        r, w = self.thresholds, self.weights
-
-        def step(x, ut):
-            x = play_step(x, ut, r)
-            return x, jnp.dot(w, x)
-
-        _, y = lax.scan(step, self.initial_states, u)
-        return y
+        return _pi_scan(u, self.thresholds, self.weights, self.initial_states)
 
     def final_states(self, u: SignalLike) -> States:
         """The plays' states after the last sample of `u`, to continue a run from where it ended.

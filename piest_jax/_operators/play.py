@@ -18,6 +18,7 @@ so a derivative with respect to it is not a meaningful sensitivity.
 
 from typing import Literal
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array
@@ -44,6 +45,9 @@ def play_step(x: Array, u: Array, r: Array) -> Array:
     return jnp.maximum(u - r, jnp.minimum(u + r, x))
 
 
+# Jitted at module level so that eager calls with the same shapes reuse one compiled program: an
+# eager `lax.scan` over a fresh closure compiles (and keeps) a new executable on every call.
+@jax.jit
 def _scan(u: Array, r: Array, x0: Array) -> Array:
     def step(x, ut):
         x = play_step(x, ut, r)
@@ -63,6 +67,7 @@ def _compose(earlier, later):
     )
 
 
+@jax.jit
 def _associative(u: Array, r: Array, x0: Array) -> Array:
     lo = u[:, None] - r
     hi = u[:, None] + r
