@@ -271,3 +271,15 @@ def test_residual_gradient_with_lags_matches_finite_differences():
     fd = np.array([(loss(unravel(flat.at[i].add(eps))) - loss(unravel(flat.at[i].add(-eps))))
                    / (2 * eps) for i in range(flat.shape[0])])
     np.testing.assert_allclose(g, fd, rtol=1e-5, atol=1e-9)
+
+
+def test_creep_only_search_chooses_the_plays_without_creep():
+    # With only creep models offered, the play count is still chosen for the plain PI model: a lag
+    # fitted alongside one play takes over part of the loops, and the search would stop there.
+    u = signal()
+    y = plant(u) + 1e-3 * np.random.default_rng(3).standard_normal(T)
+    ch = pj.select_model(u, y, DT, plays=(1, 2, 3), lags=(1,), key=jax.random.key(0))
+    plain = [c[0] for c in ch.candidates if c[1] == 0]
+    assert plain == [1, 2, 3][: len(plain)] and ch.n_plays in plain
+    assert ch.structure == "pi+creep" and ch.n_lags == 1 and ch.n_plays == len(R)
+    assert all(c[1] in (0, 1) for c in ch.candidates)

@@ -162,8 +162,8 @@ def _selection_keys(sel) -> dict:
     if isinstance(sel, ModelSize):
         return {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores,
                 "rejected": sel.rejected}
-    # The play counts tried at the fewest lags offered (the first step of the search), then
-    # every structure tried.
+    # The play counts tried for the plain PI model (the first step of the search), then every
+    # structure tried.
     base = [(c, s) for c, s in zip(sel.candidates, sel.scores) if c[1] == sel.candidates[0][1]]
     return {
         "criterion": "holdout",

@@ -10,8 +10,10 @@ a parameter undetermined (`PIFit.determined`) is never chosen, as in [`select_pl
 one whose whole-record fit does (the next in line is taken then).
 
 The search is coordinate-wise, to keep the number of fits small (each costs a full nonlinear
-fit): (1) the play count with the fewest lags offered (none by default), as [`select_plays`][]
-does; (2) the lag count at that play count, from the fewest up, stopping after `patience` in a
+fit): (1) the play count of the plain PI model, as [`select_plays`][] does, also when only
+models with creep are offered (a lag fitted alongside the plays can take over the part of the
+loops that further plays would shape, and the search would stop at one play); (2) the lag count
+at that play count among those offered, from the fewest up, stopping after `patience` in a
 row that do not improve (an undetermined candidate counts as not improving, but does not end the
 search by itself: one lag fitted to a creep of two modes can land on a poorly determined
 compromise that two lags resolve). The play count is not searched again with the chosen lags: that would double the
@@ -76,8 +78,8 @@ def select_model(
     **Arguments:**
 
     - `u`, `y`: the record, (T,) each; `dt`: its sampling interval.
-    - `plays`: play counts to try (positive, distinct); `lags`: lag counts (>= 0, distinct; 0 is
-      the plain PI model, `(0,)` never adds creep).
+    - `plays`: play counts to try (positive, distinct; chosen for the plain PI model);
+      `lags`: lag counts (>= 0, distinct; 0 is the plain PI model, `(0,)` never adds creep).
     - `holdout`, `tolerance`, `patience`, `quiet`, `mask`: as in [`select_plays`][].
     - `fit_kwargs`: passed to [`fit_pi`][].
 
@@ -149,14 +151,14 @@ def select_model(
         best = min(s for _, s in ok)
         return next(c for c, s in ok if s <= best * (1 + tolerance) + floor)
 
-    k_base = lags[0]
-    n, _ = search(plays, patience, lambda v: (v, k_base))
+    n, _ = search(plays, patience, lambda v: (v, 0))
     n, k = search(lags, patience, lambda v: (n, v))
     if hasattr(bar, "close"):
         bar.close()
     while True:
         fit = fit_one(n, k, mask)
-        left = [(c, scores[c]) for c in scores if c not in rejected and c != (n, k)]
+        left = [(c, scores[c]) for c in scores
+                if c not in rejected and c != (n, k) and c[1] in lags]
         if fit.determined or not left:
             break
         rejected.add((n, k))
