@@ -157,3 +157,46 @@ def test_feedforward_uses_the_models_own_inverse():
     np.testing.assert_allclose(np.asarray(start(u2)), yd, atol=1e-10)
     with pytest.raises(ValueError, match="no separate offset or creep"):
         pj.feedforward(g, yd, offset=0.1)
+
+
+def test_identify_fits_them_as_the_command_does(tmp_path, capsys):
+    # `piest fit --model gpi|preisach` is `identify`: the same fit, its to_json the fit.json.
+    import jax
+
+    u, uv = signal(), signal(200, 0.3, 3)
+    rec = pj.load_record(write(tmp_path / "d.csv", u, plant(u)))
+    val = pj.load_record(write(tmp_path / "v.csv", uv, plant(uv)))
+    for model, extra, options in (("gpi", ["--plays", "3", "--starts", "2"], dict(plays=3, starts=2)),
+                                  ("preisach", ["--grid", "6,6"], dict(grid=(6, 6)))):
+        out = tmp_path / model
+        assert main(["fit", rec.source, "--model", model, *extra, "--validate", val.source,
+                     "--out", str(out), "--quiet"]) == 0
+        capsys.readouterr()
+        got = pj.identify(rec, val, model=model, key=jax.random.key(0), **options)
+        assert isinstance(got.fit, pj.GPIFit if model == "gpi" else pj.PreisachFit)
+        assert got.validation.ic is None
+        np.testing.assert_allclose(got.validation.raw.rmse,
+                                   rmse(got.validation.raw.prediction, val.y))
+        want = json.loads((out / "fit.json").read_text())
+        assert json.loads(pj.write_json(tmp_path / f"{model}.json", got.to_json()).read_text()) == want
+        assert want["validation_rmse"] == pytest.approx(float(got.validation.raw.rmse))
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(model="gpi"), "`model` gpi needs `plays` N"),
+    (dict(model="gpi", plays=2, lags=[1]), "`lags` does not apply to `model` gpi"),
+    (dict(model="gpi", plays=2, positive_weights=False),
+     r"signed weights \(`positive_weights` False\) does not apply to `model` gpi"),
+    (dict(model="gpi", plays=2, terms=0), "`terms` must be a positive whole number, got 0"),
+    (dict(model="preisach", starts=2), "`starts` does not apply to `model` preisach"),
+    (dict(model="preisach", plays=3), "`plays` does not apply to `model` preisach"),
+    (dict(model="preisach", grid=(4,)), r"`grid` must be two positive whole numbers"),
+    (dict(model="preisach", smoothness=-1.0), "`smoothness` must be finite and >= 0, got -1"),
+    (dict(model="pi", terms=2), "`terms` is used only by `model` gpi, not `model` pi"),
+    (dict(grid=(4, 4)), "`grid` is used only by `model` preisach, not `model` auto"),
+])
+def test_identify_refuses_what_a_model_ignores(tmp_path, options, message):
+    u = signal()
+    rec = pj.load_record(write(tmp_path / "d.csv", u, plant(u)))
+    with pytest.raises(ValueError, match=message):
+        pj.identify(rec, **options)

@@ -367,7 +367,7 @@ def _reached(*args, **kwargs):
 # inputs are accepted (simulate is cheap and runs until it writes).
 _STUBS = {
     "simulate": [(simulate_cmd._io, "write_csv")],
-    "fit": [(fit_cmd, "identify"), (fit_saturating_cmd, "fit_gpi"), (fit_saturating_cmd, "fit_preisach")],
+    "fit": [(fit_cmd, "identify"), (fit_saturating_cmd, "identify")],
     "diagnose": [(_diagnose, "diagnose")],
     "compensate": [(compensate_cmd, "feedforward")],
     "montecarlo": [(montecarlo_cmd, "pe_map")],

@@ -9,7 +9,7 @@ from .._identification.band import prediction_band
 from .._identification.covariance import table as parameter_table
 from .._identification.figures import fit_figure
 from .._identification.fit import SOLVERS
-from .._identification.identify import check_options, fit_mask, identify, plan
+from .._identification.identify import MODELS, SATURATING, check_options, fit_mask, identify, plan
 from .._identification.model_size import CRITERIA
 from . import fit_saturating, memory
 from . import output as _io
@@ -117,7 +117,6 @@ def _counts(what: str, one: str, example: str):
 
 plays_list = _counts("numbers of plays", "number of plays", "2,3,4")
 lags_list = _counts("lag counts", "lag count", "1,2,3")
-MODELS = ("auto", "pi", "pi+creep", *fit_saturating.MODELS)
 
 
 def add_arguments(p):
@@ -183,40 +182,44 @@ def add_arguments(p):
 
 
 # `identify` names its options as `name` in its messages; here they read as the options typed.
-_OPTIONS = {"candidates": "--candidates", "criterion": "--criterion", "fit_from": "--fit-from",
-            "fit_initial_states": "--fit-initial-states", "initial_states": "--initial-states",
-            "lags": "--lags", "model": "--model", "plays": "--plays",
-            "time_constants": "--time-constants"}
+_OPTIONS = {"signed weights (`positive_weights` False)": "--signed-weights",
+            **{f"`{name}`": "--" + name.replace("_", "-") for name in (
+                "candidates", "criterion", "fit_from", "fit_initial_states", "initial_states", "lags",
+                "model", "plays", "time_constants", "terms", "grid", "smoothness", "solver", "starts",
+                "max_threshold", "max_steps")}}
 
 
 def _as_options(e: ValueError) -> CLIError:
     text = str(e)
     for name, option in _OPTIONS.items():
-        text = text.replace(f"`{name}`", option)
+        text = text.replace(name, option)
     return CLIError(text)
 
 
 def run(args) -> int:
     import jax
 
-    # gpi and preisach: their own options checked first, their fit once the records are read.
-    fit_saturating.refuse_ignored(args)
-    if args.model in fit_saturating.MODELS:
+    options = dict(model=args.model, plays=args.plays, lags=args.lags, time_constants=args.time_constants,
+                   candidates=args.candidates, criterion=args.criterion, initial_states=args.initial_states,
+                   fit_initial_states=args.fit_initial_states)
+    others = dict(terms=args.terms, grid=args.grid, smoothness=args.smoothness, solver=args.solver,
+                  starts=args.starts, positive_weights=not args.signed_weights,
+                  max_threshold=args.max_threshold, max_steps=args.max_steps)
+    try:
+        check_options(**options, **others)
+    except ValueError as e:
+        raise _as_options(e) from None
+    if args.model in SATURATING:
+        if args.model == "preisach" and args.seed != 0:
+            raise CLIError("--seed does not apply to --model preisach; leave it out")
         out = _io.check_outputs(args.out, OUTPUTS if args.validate else OUTPUTS[:3], args.force)
         rec = read_record(args.data, args)
         val = read_record(args.validate, args, validation=True) if args.validate else None
         try:
-            mask = fit_mask(rec, args.fit_from)
+            fit_mask(rec, args.fit_from)
         except ValueError as e:
             raise _as_options(e) from None
-        return fit_saturating.run(args, rec, val, mask, out)
-    options = dict(model=args.model, plays=args.plays, lags=args.lags, time_constants=args.time_constants,
-                   candidates=args.candidates, criterion=args.criterion, initial_states=args.initial_states,
-                   fit_initial_states=args.fit_initial_states)
-    try:
-        check_options(**options)
-    except ValueError as e:
-        raise _as_options(e) from None
+        return fit_saturating.run(args, rec, val, out, {**options, **others, "quiet": args.quiet})
     names = OUTPUTS if args.validate else OUTPUTS[:3]
     out = _io.check_outputs(args.out, names, args.force)
     rec = read_record(args.data, args)

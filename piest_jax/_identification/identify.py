@@ -9,7 +9,8 @@ fit`'s, the result an [`Identification`][] whose `to_json()` is fit.json. It run
    carry), giving the largest model tried, whose size the command checks against memory;
 3. the choice and the fit, then the validation, which never takes part in choosing or fitting.
 
-A new model structure is one more name in `MODELS` and one more branch in `_choose_and_fit`.
+A new model structure is one more name in `MODELS` and one more branch in `_choose_and_fit`; the
+models that saturate (generalized PI, Preisach) take theirs from `identify_saturating.py`.
 """
 
 import dataclasses
@@ -20,11 +21,20 @@ from .._data.record import Record
 from .band import PredictionBand, prediction_band
 from .compare import Comparison, compare
 from .fit import PIFit, fit_pi
+from .fit_gpi import GPIFit
+from .fit_preisach import PreisachFit
+from .identify_saturating import (
+    SATURATING,
+    check_saturating,
+    fit_saturating,
+    report_keys,
+    validation_comparison,
+)
 from .model_file import model_keys
 from .model_size import CRITERIA, HOLDOUT, ModelSize, holdout_mask, select_plays
 from .model_structure import ModelChoice, select_model
 
-MODELS = ("auto", "pi", "pi+creep")
+MODELS = ("auto", "pi", "pi+creep", *SATURATING)
 CANDIDATES = (1, 2, 3, 4, 5, 6, 8, 10)
 LAGS = (1, 2, 3)
 
@@ -39,7 +49,8 @@ class Validation:
     - `raw`: the model run on it from the states named by `state_convention` (a
       [`Comparison`][]).
     - `ic`: the model with the record's own output offset and initial play and lag states
-      estimated, nothing else (a [`Comparison`][]).
+      estimated, nothing else (a [`Comparison`][]); None for the models that saturate, which
+      are judged by their raw prediction only.
     - `starts_at_rest`: whether the record's input starts at rest (see `starts_at_rest`); when
       it does not, `raw` depends on states the record does not show.
     - `state_convention`: the states `raw` starts from, in words.
@@ -49,7 +60,7 @@ class Validation:
 
     record: Record
     raw: Comparison
-    ic: Comparison
+    ic: Comparison | None
     starts_at_rest: bool
     state_convention: str
     raw_band: PredictionBand | None = None
@@ -72,8 +83,9 @@ class Identification:
 
     **Fields:**
 
-    - `fit`: the chosen model fitted on the record (a [`PIFit`][]; `fit.model()` is the
-      [`HysteresisModel`][]).
+    - `fit`: the chosen model fitted on the record: a [`PIFit`][] (`fit.model()` is the
+      [`HysteresisModel`][]), or for `model="gpi"` / `"preisach"` a [`GPIFit`][] /
+      [`PreisachFit`][].
     - `record`: the identification [`Record`][].
     - `selection`: how the size was chosen: a [`ModelSize`][] (`plays="auto"` with
       `model="pi"`), a [`ModelChoice`][] (several structures or sizes tried), or None (one
@@ -81,14 +93,16 @@ class Identification:
     - `validation`: a [`Validation`][] on the second record, or None.
     - `solver`: the solver's name (or an optimistix solver object, as given).
     - `fit_from`: the time from which samples were fitted, or None (all of them).
+    - `positive_weights`: whether the weights (a Preisach density) were kept non-negative.
     """
 
-    fit: PIFit
+    fit: PIFit | GPIFit | PreisachFit
     record: Record
     selection: ModelSize | ModelChoice | None = None
     validation: Validation | None = None
     solver: object = "lm"
     fit_from: float | None = None
+    positive_weights: bool = True
 
     @property
     def mask(self) -> np.ndarray | None:
@@ -104,6 +118,8 @@ class Identification:
         the validation. [`write_json`][] writes it; a standard error the record cannot bound is
         infinite there (null in the file).
         """
+        if isinstance(self.fit, GPIFit | PreisachFit):
+            return self._saturating_json()
         f, rec = self.fit, self.record
         model = f.model()
         mask = self.mask
@@ -119,7 +135,7 @@ class Identification:
             "rmse": f.rmse,
             "flagged": f.flagged,
             "solver": {
-                "name": self.solver if isinstance(self.solver, str) else type(self.solver).__name__,
+                "name": _solver_name(self.solver),
                 "result": f.result_name,
                 "steps": f.n_steps,
                 "start_rmse": f.start_rmse,
@@ -158,6 +174,29 @@ class Identification:
         return report
 
 
+    def _saturating_json(self) -> dict:
+        f, rec = self.fit, self.record
+        report = {**model_keys(f.model), "data": rec.source, "n_samples": rec.n_samples,
+                  "dt": rec.dt, **report_keys(f, self.positive_weights)}
+        if isinstance(f, GPIFit):
+            report["solver"] = {"name": _solver_name(self.solver), "result": f.result_name,
+                                "steps": f.n_steps, "start_rmse": f.start_rmse}
+        report.update(input_extent(rec, self.mask))
+        if self.fit_from is not None:
+            report["fit_from"] = self.fit_from
+        v = self.validation
+        if v is not None:
+            report["validate"] = v.record.source
+            report["validation_initial_states"] = v.state_convention
+            report["validation_rmse"] = float(v.raw.rmse)
+            report["validation_fit_percent"] = float(v.raw.fit_percent)
+        return report
+
+
+def _solver_name(solver) -> str:
+    return solver if isinstance(solver, str) else type(solver).__name__
+
+
 def _selection_keys(sel) -> dict:
     if isinstance(sel, ModelSize):
         return {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores,
@@ -190,13 +229,18 @@ class Plan:
 
 
 def check_options(*, model="auto", plays="auto", lags=None, time_constants=None, candidates=None,
-                  criterion=None, initial_states=None, fit_initial_states=False) -> None:
+                  criterion=None, initial_states=None, fit_initial_states=False, **others) -> None:
     """Refuse options that contradict each other, or that the chosen mode would ignore.
 
-    Messages name options as `name`, which the command line turns into its --name.
+    `others` are [`identify`][piest_jax.identify]'s further options by name (`terms`, `grid`,
+    `smoothness`, `solver`, `starts`, ...), checked against the models that saturate. Messages
+    name options as `name`, which the command line turns into its --name.
     """
     if model not in MODELS:
         raise ValueError(f"unknown `model` {model!r}; choose one of {', '.join(MODELS)}")
+    check_saturating(dict(model=model, plays=plays, lags=lags, time_constants=time_constants,
+                          candidates=candidates, criterion=criterion,
+                          fit_initial_states=fit_initial_states, **others))
     if plays != "auto" and not (isinstance(plays, int | np.integer) and not isinstance(plays, bool)
                                 and plays >= 1):
         raise ValueError(f"`plays` must be a positive whole number or 'auto', got {plays!r}")
@@ -248,11 +292,7 @@ def plan(record: Record, *, model="auto", plays="auto", lags=None, time_constant
     check_options(model=model, plays=plays, lags=lags, time_constants=time_constants,
                   candidates=candidates, criterion=criterion, initial_states=initial_states,
                   fit_initial_states=fit_initial_states)
-    if not isinstance(record, Record):
-        raise ValueError(f"`record` must be a Record (see load_record), got {type(record).__name__}")
-    if np.ptp(record.u) == 0:
-        raise ValueError(f"{record.source}: the input u is constant ({record.u[0]:g}): it excites "
-                         "no play, so there is nothing to fit")
+    _check_record(record)
     mask = fit_mask(record, fit_from)
     n_used = record.n_samples if mask is None else int(mask.sum())
     candidates = _counts(candidates or CANDIDATES)
@@ -301,6 +341,9 @@ def identify(
     fit_initial_states: bool = False,
     max_threshold: float | None = None,
     max_steps: int = 100,
+    terms: int | None = None,
+    grid: tuple[int, int] | None = None,
+    smoothness: float | None = None,
     quiet: bool = True,
 ) -> Identification:
     """Choose, fit and validate a model of a measured record: what `piest fit` computes.
@@ -310,7 +353,10 @@ def identify(
     - `record`: the identification [`Record`][]; `validation`: a second record to judge the
       model on (it never takes part in choosing or fitting), or None.
     - `model`: `"auto"` (plain PI or PI + creep, by held-out error: [`select_model`][]),
-      `"pi"` or `"pi+creep"`.
+      `"pi"`, `"pi+creep"`, or one of the models that saturate: `"gpi"` (a
+      [`GeneralizedPI`][], [`fit_gpi`][piest_jax.fit_gpi]; needs `plays`) or `"preisach"` (a
+      [`Preisach`][] grid, [`fit_preisach`][piest_jax.fit_preisach]; no `plays`, `solver`,
+      `starts`, ...). Options a model would ignore are refused.
     - `plays`: the number of plays, or `"auto"` to choose it among `candidates` (default
       1, 2, 3, 4, 5, 6, 8, 10) by `criterion` (`"holdout"`, the default, or `"bic"` with
       `model="pi"`); candidates the record is too short for are left out.
@@ -321,6 +367,10 @@ def identify(
       plays), or None.
     - `solver`, `key`, `starts` (`n_starts`), `positive_weights`, `initial_states`,
       `fit_initial_states`, `max_threshold`, `max_steps`: as for [`fit_pi`][].
+    - `terms`: `model="gpi"`: the tanh terms of the output function (default 2).
+    - `grid`: `model="preisach"`: (half-widths, centres) of the relay grid (default (16, 16));
+      `smoothness`: its density's smoothness penalty (default: chosen on held-out blocks);
+      `positive_weights` keeps its density non-negative.
     - `quiet`: when False, show a progress bar over the candidates (on a terminal only).
 
     **Returns:** an [`Identification`][]; its `to_json()` is `piest fit`'s fit.json. Raises
@@ -332,9 +382,25 @@ def identify(
     options = dict(model=model, plays=plays, lags=lags, time_constants=time_constants,
                    candidates=candidates, criterion=criterion, initial_states=initial_states,
                    fit_initial_states=fit_initial_states)
-    p = plan(record, fit_from=fit_from, **options)
     if validation is not None and not isinstance(validation, Record):
         raise ValueError(f"`validation` must be a Record or None, got {type(validation).__name__}")
+    saturating = dict(terms=terms, grid=grid, smoothness=smoothness, solver=solver, starts=starts,
+                      positive_weights=positive_weights, max_threshold=max_threshold,
+                      max_steps=max_steps)
+    check_options(**options, **saturating)
+    if model in SATURATING:
+        _check_record(record)
+        mask = fit_mask(record, fit_from)
+        fit = fit_saturating(record, mask, model=model, plays=plays, key=key,
+                             initial_states=initial_states, fit_initial_states=fit_initial_states,
+                             **saturating)
+        checked = None
+        if validation is not None:
+            raw, convention = validation_comparison(fit, validation, initial_states,
+                                                    fit_initial_states)
+            checked = Validation(validation, raw, None, starts_at_rest(validation.u), convention)
+        return Identification(fit, record, None, checked, solver, fit_from, positive_weights)
+    p = plan(record, fit_from=fit_from, **options)
     fit_options = dict(
         mask=p.mask, solver=solver, n_starts=starts, key=key, positive_weights=positive_weights,
         fit_initial_states=fit_initial_states, initial_states=initial_states,
@@ -392,6 +458,14 @@ def input_extent(record: Record, mask) -> dict:
     return {"input_half_range": 0.5 * float(np.ptp(record.u)),
             "input_range": [float(record.u.min()), float(record.u.max())],
             "n_fitted_samples": record.n_samples if mask is None else int(mask.sum())}
+
+
+def _check_record(record) -> None:
+    if not isinstance(record, Record):
+        raise ValueError(f"`record` must be a Record (see load_record), got {type(record).__name__}")
+    if np.ptp(record.u) == 0:
+        raise ValueError(f"{record.source}: the input u is constant ({record.u[0]:g}): it excites "
+                         "no play, so there is nothing to fit")
 
 
 def fit_mask(record: Record, fit_from) -> np.ndarray | None:
