@@ -8,6 +8,8 @@ the chosen model (fitted on the whole record) over the whole record, against the
 `--shard i/k` runs every k-th record, for k processes; `--merge` combines their files.
 
     python experiments/diagnose_confusion.py --per-class 4 --pairs 2 --samples 500
+
+`--noise-ar PHI` colours the sensor noise (AR(1), lag-one autocorrelation PHI, same std).
 """
 
 import argparse
@@ -45,7 +47,7 @@ def run(args, shard, n_shards, save):
         if j % n_shards != shard:
             continue
         k = jax.random.fold_in(jax.random.fold_in(key, ci), i)
-        rec, truth = pj.hidden_effect_record(cls, key=k, n_samples=args.samples)
+        rec, truth = pj.hidden_effect_record(cls, key=k, n_samples=args.samples, noise_ar=args.noise_ar)
         t1 = time.time()
         # The whole diagnosis: its search names the effects, and it reports both models' RMSE over
         # the whole record.
@@ -107,6 +109,8 @@ def main():
     ap.add_argument("--pairs", type=int, default=2)
     ap.add_argument("--samples", type=int, default=500)
     ap.add_argument("--seed", type=int, default=2024)
+    ap.add_argument("--noise-ar", type=float, default=0.0,
+                    help="lag-one autocorrelation of the sensor noise (AR(1); 0 is white)")
     ap.add_argument("--shard", default="0/1", help="i/k: run every k-th record starting at i")
     ap.add_argument("--merge", nargs="*", help="combine these shard files into --out and stop")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "diagnose_confusion.json"))
@@ -117,7 +121,8 @@ def main():
     def save(rows, secs):
         stats = summarise(rows)
         md = markdown(stats)
-        meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed)
+        meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed,
+                    noise_ar=a.noise_ar)
         out.write_text(json.dumps(dict(**meta, seconds=secs, n_records=len(rows), totals=totals(rows), stats=stats,
                                        rows=rows, table=md), indent=1))
         return md

@@ -80,6 +80,30 @@ def test_generator_is_reproducible_and_checks_names():
         _hidden.generate(("magic",), key=key)
 
 
+def test_generator_coloured_noise():
+    from scipy.signal import lfilter
+
+    key = jax.random.PRNGKey(3)
+    white, tw = _hidden.generate(("creep",), key=key, n_samples=400)
+    same, ts = _hidden.generate(("creep",), key=key, n_samples=400, noise_ar=0.0)
+    np.testing.assert_array_equal(white.y, same.y)
+    coloured, tc = _hidden.generate(("creep",), key=key, n_samples=400, noise_ar=0.9)
+    assert tc["noise_ar"] == 0.9 and tw["noise_ar"] == 0.0 and not np.array_equal(white.y, coloured.y)
+    # The AR(1) filter against scipy's: e_0 = w_0, e_t = φ e_{t-1} + √(1 - φ²) w_t.
+    w = np.random.default_rng(0).normal(0, 2.0, 200_000)
+    phi = 0.8
+    b = np.sqrt(1 - phi**2)
+    ref = lfilter([b], [1.0, -phi], w, zi=[(1 - b) * w[0]])[0]
+    e = _hidden._ar1(w.copy(), phi)
+    np.testing.assert_allclose(e, ref, rtol=1e-12, atol=1e-12)
+    # Stationary: the std stays σ, the lag-one autocorrelation is φ (sampling error ~ 1/√N).
+    assert abs(np.std(e) / 2.0 - 1) < 0.02
+    assert abs(np.corrcoef(e[:-1], e[1:])[0, 1] - phi) < 0.01
+    for bad in (-0.1, 1.0, float("nan"), "0.5"):
+        with pytest.raises(ValueError, match="`noise_ar` must be a number in \\[0, 1\\)"):
+            _hidden.generate((), key=key, noise_ar=bad)
+
+
 # The confusion matrix over generated records: every record is searched with all seven candidates.
 # The bars: the right effect named in >= 90 % of single-effect records, no effect in >= 90 %
 # of effect-free ones, the final RMSE within 1.5x the noise when the right effect is named, and

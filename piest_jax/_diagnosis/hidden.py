@@ -49,7 +49,7 @@ def _pi(u, r, w, x0, rt=None):
     return np.ascontiguousarray(plays(u, r if rt is None else rt, np.asarray(x0, float)[None])[0]) @ w
 
 
-def generate(effects=(), *, key, n_samples=2000, noise=None):
+def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0.0):
     """One synthetic record: PI operator, the named hidden effects, and measurement noise.
 
     **Arguments:**
@@ -59,11 +59,15 @@ def generate(effects=(), *, key, n_samples=2000, noise=None):
     - `n_samples`: the record length.
     - `noise`: the noise std as a fraction of the output range (default: drawn in [0.3 %, 1 %] of
       the range, lowered where needed so the effects' footprint is 2-5x the noise).
+    - `noise_ar`: the noise's lag-one autocorrelation φ in [0, 1): coloured (AR(1)) noise
+      e_t = φ e_{t-1} + √(1 - φ²) σ ε_t, whose std stays σ; 0 (the default) is white noise.
 
     **Returns:** `(record, truth)`: a `Record` and a dict with the effects, their drawn forms and
     parameters, and `noise_std` (the true noise std in the record's units).
     """
     check_names(effects)
+    if not (isinstance(noise_ar, int | float | np.floating) and 0.0 <= noise_ar < 1.0):
+        raise ValueError(f"`noise_ar` must be a number in [0, 1), got {noise_ar!r}")
     rng = _rng(_checks.prng_key(key))
     dt = 1.0 / rng.choice([200.0, 500.0, 1000.0])
     t, u, f0 = _input(rng, n_samples, dt)
@@ -107,12 +111,25 @@ def generate(effects=(), *, key, n_samples=2000, noise=None):
         # With two effects, each one's own footprint counts, so that neither is invisible.
         foot = min(_plain_pi_misfit(u, simulate((e,))) for e in effects) if len(effects) > 1 else _plain_pi_misfit(u, y)
         sig = max(min(sig, foot / rng.uniform(2.0, 5.0)), 1e-3 * span)
-    y = y + rng.normal(0, sig, len(y)) + rng.uniform(-1, 1) * span
+    y = y + _ar1(rng.normal(0, sig, len(y)), float(noise_ar)) + rng.uniform(-1, 1) * span
     q = sig * rng.uniform(0.1, 0.5)
     y = np.round(y / q) * q  # sensor quantisation
     truth["noise_std"] = float(np.sqrt(sig**2 + q**2 / 12))
+    truth["noise_ar"] = float(noise_ar)
     u_off = rng.uniform(-2, 2)
     return Record(t, u + u_off, y, source="hidden-effect generator"), truth
+
+
+def _ar1(white, phi: float):
+    """White noise of std σ turned into AR(1) noise of lag-one autocorrelation `phi` and std σ,
+    stationary from the first sample (unchanged for phi = 0)."""
+    if phi == 0.0:
+        return white
+    e = white * np.sqrt(1.0 - phi**2)
+    e[0] = white[0]
+    for i in range(1, len(e)):
+        e[i] += phi * e[i - 1]
+    return e
 
 
 def _plain_pi_misfit(u, y):
