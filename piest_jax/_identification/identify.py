@@ -173,7 +173,6 @@ class Identification:
                 report["validation_band_coverage_ic"] = v.band_coverage_ic
         return report
 
-
     def _saturating_json(self) -> dict:
         f, rec = self.fit, self.record
         report = {**model_keys(f.model), "data": rec.source, "n_samples": rec.n_samples,
