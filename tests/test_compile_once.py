@@ -66,7 +66,19 @@ CASES = {
     "prediction_band": lambda recs: pj.prediction_band(
         pj.fit_pi(recs[0].u, recs[0].y, 3, n_starts=2), recs[1].u),
     "feedforward": lambda recs: pj.feedforward(pj.PIOperator(R, W), _u()),
+    "GeneralizedPI and its inverse": lambda recs: pj.feedforward(_gpi(), 0.5 * _gpi()(_u())),
+    "Preisach and its inverse": lambda recs: pj.feedforward(_preisach(), 0.5 * _preisach()(_u())),
 }
+
+
+def _gpi():
+    return pj.GeneralizedPI(pj.PIOperator(R, W), [1.0, 0.5], [0.0, 1.0], [1.0, 2.0], 0.2)
+
+
+def _preisach():
+    K, M = 3, 4
+    return pj.Preisach(jnp.linspace(0.1, 1.5, K), jnp.linspace(-2.0, 2.0, M),
+                       jnp.full((K, M), 0.3), 0.1)
 
 
 @pytest.mark.parametrize("name", list(CASES))

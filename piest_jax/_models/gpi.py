@@ -160,20 +160,7 @@ class GeneralizedPI(eqx.Module):
 
         **Returns:** v with g(v) = y, the shape of `y`.
         """
-        y = jnp.asarray(y, self.centres.dtype)
-        lo_y, hi_y = self.output_range()
-        z = (y - self.offset) / (hi_y - self.offset)
-        v_k = self.centres + self.scales * jnp.arctanh(z)[..., None]
-        bounds = (jnp.min(v_k, axis=-1), jnp.max(v_k, axis=-1))
-
-        def body(_, ab):
-            a, b = ab
-            mid = 0.5 * (a + b)
-            up = self.output_function(mid) < y
-            return jnp.where(up, mid, a), jnp.where(up, b, mid)
-
-        a, b = lax.fori_loop(0, n_iter, body, bounds)
-        return 0.5 * (a + b)
+        return _output_inverse(self, jnp.asarray(y, self.centres.dtype), n_iter)
 
     def __call__(self, u: SignalLike) -> Signal:
         """The model output g(P[u]) (T,) for one input signal `u` (T,)."""
@@ -226,3 +213,22 @@ class GeneralizedPI(eqx.Module):
         else:
             y = eqx.error_if(y, jnp.any(outside), "the desired output is outside the model's range")
         return self.pi.inverse()(self.output_inverse(y, n_iter))
+
+
+# Jitted at module level so that repeat calls with the same shapes reuse one compiled program (an
+# eager loop over a fresh closure would compile, and keep, a new one on every call).
+@eqx.filter_jit
+def _output_inverse(model: GeneralizedPI, y: Array, n_iter: int) -> Array:
+    lo_y, hi_y = model.output_range()
+    z = (y - model.offset) / (hi_y - model.offset)
+    v_k = model.centres + model.scales * jnp.arctanh(z)[..., None]
+    bounds = (jnp.min(v_k, axis=-1), jnp.max(v_k, axis=-1))
+
+    def body(_, ab):
+        a, b = ab
+        mid = 0.5 * (a + b)
+        up = model.output_function(mid) < y
+        return jnp.where(up, mid, a), jnp.where(up, b, mid)
+
+    a, b = lax.fori_loop(0, n_iter, body, bounds)
+    return 0.5 * (a + b)

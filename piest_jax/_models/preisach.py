@@ -287,31 +287,38 @@ class Preisach(eqx.Module):
                                  "entries (fit with monotone=True for an invertible model)")
         else:
             mu = eqx.error_if(mu, jnp.any(mu < 0), "a negative density cannot be inverted")
-        model = eqx.tree_at(lambda m: m.density, self, mu)
-        if model.initial_states is None:
-            lo, hi = model.input_range()
-            # Relaxed plays sit at the input itself: bisection with x = u for every play.
-            def f0(u):
-                s = jnp.clip((u - model.centres) / model.blur, -1.0, 1.0)
-                return model.offset + jnp.sum(mu * s)
+        return _inverse(eqx.tree_at(lambda m: m.density, self, mu), y, n_iter)
 
-            def body(_, bounds):
-                a, b = bounds
-                mid = 0.5 * (a + b)
-                ok = f0(mid) >= y[0]
-                return jnp.where(ok, a, mid), jnp.where(ok, mid, b)
 
-            _, u0 = lax.fori_loop(0, n_iter, body, (lo, hi))
-            # The first input is u0 itself: the forward model starts its plays at its first input.
-            x0, first, rest = jnp.full_like(model.half_widths, u0), u0[None], y[1:]
-        else:
-            x0 = model.initial_states
-            u0, first, rest = jnp.mean(x0), y[:0], y
+# Jitted at module level so that repeat calls with the same shapes reuse one compiled program (the
+# eager loops below would compile, and keep, new ones on every call).
+@eqx.filter_jit
+def _inverse(model: Preisach, y, n_iter: int):
+    mu = model.density
+    if model.initial_states is None:
+        lo, hi = model.input_range()
+        # Relaxed plays sit at the input itself: bisection with x = u for every play.
+        def f0(u):
+            s = jnp.clip((u - model.centres) / model.blur, -1.0, 1.0)
+            return model.offset + jnp.sum(mu * s)
 
-        def step(carry, yt):
-            x, u_prev = carry
-            x, u = model.inverse_step(x, yt, u_prev, n_iter)
-            return (x, u), u
+        def body(_, bounds):
+            a, b = bounds
+            mid = 0.5 * (a + b)
+            ok = f0(mid) >= y[0]
+            return jnp.where(ok, a, mid), jnp.where(ok, mid, b)
 
-        _, us = lax.scan(step, (x0, u0), rest)
-        return jnp.concatenate([first, us])
+        _, u0 = lax.fori_loop(0, n_iter, body, (lo, hi))
+        # The first input is u0 itself: the forward model starts its plays at its first input.
+        x0, first, rest = jnp.full_like(model.half_widths, u0), u0[None], y[1:]
+    else:
+        x0 = model.initial_states
+        u0, first, rest = jnp.mean(x0), y[:0], y
+
+    def step(carry, yt):
+        x, u_prev = carry
+        x, u = model.inverse_step(x, yt, u_prev, n_iter)
+        return (x, u), u
+
+    _, us = lax.scan(step, (x0, u0), rest)
+    return jnp.concatenate([first, us])
