@@ -8,11 +8,12 @@ blocks are run after its blocks, as one reader's session.
   folder (later blocks may use names from earlier ones, as a reader would in one session).
 - Every ```bash block is run, in order, as one `bash -euo pipefail` script in another temporary
   folder, with this interpreter's `bin` folder first on PATH (so `piest` and `python` are the
-  ones under test). Two blocks are special: the main command between the `main-command` markers
-  creates a virtual environment and installs the package, which is what this test runs in
-  already, so only its `piest` commands are run; the test command between the `test-command`
-  markers is what CI runs (`.ci/run` runs the same command and refuses to start if they differ),
-  so here it is only checked.
+  ones under test); tests/test_readme_shell.py runs it, so that the two sessions (each a minute
+  of subprocesses) run on different test workers. Two blocks are special: the main command
+  between the `main-command` markers creates a virtual environment and installs the package,
+  which is what this test runs in already, so only its `piest` commands are run; the test command
+  between the `test-command` markers is what CI runs (`.ci/run` runs the same command and refuses
+  to start if they differ), so here it is only checked.
 - ```bibtex blocks are checked for balanced braces and the paper's DOI. A block in any other
   language fails the test: nothing in the README goes unchecked.
 - Every `piest ...` command in a shell block (and every `example:` line of a command's help) is
@@ -111,20 +112,6 @@ def _marked(text: str, marker: str) -> str:
     return m.group(1)
 
 
-def shell_script(text: str) -> str:
-    """The README's shell blocks as one script, as this test runs them (see the module docstring)."""
-    main_block = code_blocks(_marked(text, "main-command").strip() + "\n")[0][1]
-    test_block = code_blocks(_marked(text, "test-command").strip() + "\n")[0][1]
-    parts = []
-    for lang, code in code_blocks(text):
-        if lang not in SHELL or code == test_block:
-            continue
-        if code == main_block:
-            code = "\n".join(shlex.join(["piest", *args]) for args in piest_commands(code)) + "\n"
-        parts.append(code)
-    return "set -euo pipefail\n" + "\n".join(parts)
-
-
 def _env() -> dict:
     bin_dir = str(Path(sys.executable).parent)
     return dict(os.environ, MPLBACKEND="Agg", PATH=bin_dir + os.pathsep + os.environ.get("PATH", ""))
@@ -153,13 +140,6 @@ def test_every_block_is_run_or_checked():
 def test_readme_python_runs(tmp_path):
     (tmp_path / "readme_blocks.py").write_text("\n\n".join(PYTHON), encoding="utf-8")
     _run([sys.executable, "readme_blocks.py"], tmp_path, "Python")
-
-
-def test_readme_shell_runs(tmp_path):
-    script = shell_script(_documents())
-    assert "piest" in script
-    (tmp_path / "readme_blocks.sh").write_text(script, encoding="utf-8")
-    _run(["bash", "readme_blocks.sh"], tmp_path, "shell blocks")
 
 
 def test_readme_bibtex_is_well_formed():
