@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, seed
 from hypothesis import strategies as st
 from reference import exact_play, exact_rank, exact_window_pe
 
@@ -146,6 +146,12 @@ def dyadic_cases(draw):
     return _dyadic_case(draw)
 
 
+# Theorems 2 and 4 are checked on the same cases (one seed for both): each case has its own
+# shapes, window and stride, so the second test reuses the programs the first compiled for them.
+DYADIC_SEED = 2
+
+
+@seed(DYADIC_SEED)
 @given(dyadic_cases())
 def test_theorem2_matches_exact_rank_on_adversarial_inputs(case):
     u, r, x0, window, stride = case
@@ -236,6 +242,7 @@ def _check_margin(u, r, x0, window, stride):
     return m, lo
 
 
+@seed(DYADIC_SEED)
 @given(dyadic_cases())
 def test_theorem4_margin_is_a_lower_bound(case):
     u, r, x0, window, stride = case
