@@ -180,6 +180,16 @@ def test_identify_fits_them_as_the_command_does(tmp_path, capsys):
         want = json.loads((out / "fit.json").read_text())
         assert json.loads(pj.write_json(tmp_path / f"{model}.json", got.to_json()).read_text()) == want
         assert want["validation_rmse"] == pytest.approx(float(got.validation.raw.rmse))
+        # validation_fit_percent and _ic are the PI models' prediction with estimated initial
+        # conditions; these models have none, so the keys are absent rather than meaning another thing.
+        assert not {"validation_fit_percent", "validation_rmse_ic"} & set(want)
+
+
+def test_defaults_given_explicitly_are_not_refused():
+    from piest_jax._identification.identify import check_options
+
+    check_options(model="gpi", plays=np.int64(2), positive_weights=np.True_, solver="lm")
+    check_options(model="preisach", starts=np.int64(4), max_steps=100.0, fit_initial_states=np.False_)
 
 
 @pytest.mark.parametrize("options, message", [

@@ -118,78 +118,58 @@ class Identification:
         the validation. [`write_json`][] writes it; a standard error the record cannot bound is
         infinite there (null in the file).
         """
-        if isinstance(self.fit, GPIFit | PreisachFit):
-            return self._saturating_json()
-        f, rec = self.fit, self.record
-        model = f.model()
-        mask = self.mask
+        f, rec, v = self.fit, self.record, self.validation
+        saturating = isinstance(f, GPIFit | PreisachFit)
+        model = f.model if saturating else f.model()
         # The model's keys (schema, structure, parameters, creep) as `save_model` writes them,
-        # so that `load_model` reads fit.json back.
-        report = {
-            **model_keys(model),
-            "data": rec.source,
-            "n_samples": rec.n_samples,
-            "dt": rec.dt,
-            "model": {"structure": model.structure, "n_plays": f.n_plays, "n_lags": f.n_lags},
-            "n_plays": f.n_plays,
-            "rmse": f.rmse,
-            "flagged": f.flagged,
-            "solver": {
-                "name": _solver_name(self.solver),
-                "result": f.result_name,
-                "steps": f.n_steps,
-                "start_rmse": f.start_rmse,
-            },
-            **input_extent(rec, mask),
-            "std_errors": dict(zip(f.parameter_names, f.std_errors)),
-            "covariance": {"method": f.covariance_method, "parameter_names": f.parameter_names,
-                           "matrix": f.covariance},
-            "undetermined": f.undetermined_names,
-        }
-        if f.creep is not None:
-            report["creep"] = {
-                "time_constants": f.creep.time_constants,
-                "weights": f.creep.weights,
-                "dt": f.creep.dt,
-                # At rest: each lag starts at the first input of whatever record it runs on.
-                "starts_at_rest": f.creep.initial_states is None,
-            }
-            if f.creep.initial_states is not None:
-                report["creep"]["initial_states"] = f.creep.initial_states
+        # so that `load_model` reads fit.json back; then how it was fitted.
+        report = {**model_keys(model), "data": rec.source, "n_samples": rec.n_samples, "dt": rec.dt,
+                  **(report_keys(f, self.positive_weights) if saturating else _pi_keys(f, model))}
+        if not isinstance(f, PreisachFit):
+            report["solver"] = {"name": _solver_name(self.solver), "result": f.result_name,
+                                "steps": f.n_steps, "start_rmse": f.start_rmse}
+        report.update(input_extent(rec, self.mask))
         if self.fit_from is not None:
             report["fit_from"] = self.fit_from
         if self.selection is not None:
             report["selection"] = _selection_keys(self.selection)
-        v = self.validation
         if v is not None:
             report["validate"] = v.record.source
             report["validation_initial_states"] = v.state_convention
-            report["validation_starts_at_rest"] = v.starts_at_rest
             report["validation_rmse"] = float(v.raw.rmse)
+        if v is not None and v.ic is not None:
+            report["validation_starts_at_rest"] = v.starts_at_rest
             report["validation_rmse_ic"] = float(v.ic.rmse)
+            # The fit percentage of the prediction with the record's initial conditions.
             report["validation_fit_percent"] = float(v.ic.fit_percent)
             if v.raw_band is not None:
                 report["validation_band_coverage"] = v.band_coverage
                 report["validation_band_coverage_ic"] = v.band_coverage_ic
         return report
 
-    def _saturating_json(self) -> dict:
-        f, rec = self.fit, self.record
-        report = {**model_keys(f.model), "data": rec.source, "n_samples": rec.n_samples,
-                  "dt": rec.dt, **report_keys(f, self.positive_weights)}
-        if isinstance(f, GPIFit):
-            report["solver"] = {"name": _solver_name(self.solver), "result": f.result_name,
-                                "steps": f.n_steps, "start_rmse": f.start_rmse}
-        report.update(input_extent(rec, self.mask))
-        if self.fit_from is not None:
-            report["fit_from"] = self.fit_from
-        v = self.validation
-        if v is not None:
-            report["validate"] = v.record.source
-            report["validation_initial_states"] = v.state_convention
-            report["validation_rmse"] = float(v.raw.rmse)
-            report["validation_fit_percent"] = float(v.raw.fit_percent)
-        return report
+def _pi_keys(f: PIFit, model) -> dict:
+    """fit.json's keys for a PI or PI + creep fit: size, RMSE, flags, covariance, creep."""
+    keys = {
+        "model": {"structure": model.structure, "n_plays": f.n_plays, "n_lags": f.n_lags},
+        "n_plays": f.n_plays,
+        "rmse": f.rmse,
+        "flagged": f.flagged,
+        "std_errors": dict(zip(f.parameter_names, f.std_errors)),
+        "covariance": {"method": f.covariance_method, "parameter_names": f.parameter_names,
+                       "matrix": f.covariance},
+        "undetermined": f.undetermined_names,
+    }
+    if f.creep is not None:
+        keys["creep"] = {
+            "time_constants": f.creep.time_constants,
+            "weights": f.creep.weights,
+            "dt": f.creep.dt,
+            # At rest: each lag starts at the first input of whatever record it runs on.
+            "starts_at_rest": f.creep.initial_states is None,
+        }
+        if f.creep.initial_states is not None:
+            keys["creep"]["initial_states"] = f.creep.initial_states
+    return keys
 
 
 def _solver_name(solver) -> str:

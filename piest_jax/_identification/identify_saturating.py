@@ -61,7 +61,7 @@ def check_saturating(options: dict) -> None:
 
 
 def _same(value, default) -> bool:
-    return value is default if default is None or isinstance(default, bool) else value == default
+    return value is None if default is None else bool(value == default)
 
 
 def _count(value) -> bool:
