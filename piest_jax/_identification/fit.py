@@ -48,6 +48,7 @@ from .._operators.pi import PIOperator
 from .._operators.play import play_step
 from . import covariance as _cov
 from . import time_constants
+from .batches import map_in_batches
 from .fit_data import prepare as _prepare
 from .solvers import SOLVERS as SOLVERS
 from .solvers import check_solver, least_squares_solver, result_name
@@ -348,14 +349,7 @@ def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
     data = (un, yn, x0, mask, r_bound, active, z0, lag_active, lag_base)
     data = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), data)
 
-    def fn(xs):
-        return one(*xs)
-
-    if batch is None or batch >= n:
-        return jax.vmap(fn)((r0s, log_tau0s, *data))
-    # `batch` starts at a time under vmap, the batches one after another: memory grows with
-    # batch x T rather than starts x T.
-    return lax.map(fn, (r0s, log_tau0s, *data), batch_size=batch)
+    return map_in_batches(lambda xs: one(*xs), (r0s, log_tau0s, *data), batch)
 
 
 # Above this many (padded) samples a Levenberg-Marquardt fit accumulates the normal equations

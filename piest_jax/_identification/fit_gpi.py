@@ -27,11 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jax import lax
 
 from .._custom_types import Scalar, Signal, SignalLike
 from .._models.gpi import GeneralizedPI, output_function
 from .._operators.pi import PIOperator
+from .batches import map_in_batches
 from .fit import (
     Solver,
     _constrained,
@@ -130,8 +130,7 @@ def _solve_starts(r0s, u, y, x0, mask, r_bound, *, n_terms, fit_initial_states, 
         loss = jnp.where(jnp.isfinite(loss), loss, jnp.inf)
         return sol.value, loss, sol.result, sol.stats["num_steps"]
 
-    # `batch` starts at a time under vmap: memory grows with batch x T, not starts x T.
-    return lax.map(one, r0s, batch_size=batch)
+    return map_in_batches(one, r0s, batch)
 
 
 def fit_gpi(
@@ -185,6 +184,10 @@ def fit_gpi(
         raise ValueError(f"`n_starts` must be at least 1, got {n_starts!r}")
     if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
+    if starts_at_once is not None and (
+        not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1
+    ):
+        raise ValueError(f"`starts_at_once` must be a positive whole number, got {starts_at_once}")
     n_terms = int(n_terms)
     un, yn, mask, s, x0, _ = prepare(u, y, n_plays, mask, None, initial_states,
                                      3 if fit_initial_states else 2, extra=3 * n_terms - 1)
