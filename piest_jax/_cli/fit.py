@@ -71,7 +71,9 @@ model can be inverted by `piest compensate`) unless --signed-weights.
 --model gpi fits y = offset + sum_k a_k tanh((v - c_k)/s_k), v = sum_j w_j H_{r_j}[u]: the PI's
 loops bent into saturating ones (B-H loops, piezos at large drive), everything jointly, with
 --terms K tanh terms (default 2) and --plays N (required); fit.json adds output_function
-(amplitudes, centres, scales). --model preisach fits a discrete Preisach model on a --grid K,M
+(amplitudes, centres, scales) and, as for PI, std_errors, covariance and undetermined for its
+parameters (output.amplitudes[k], output.centres[k], output.scales[k]: s_1 = 1 is fixed), with
+the value +- std error table in fit.md and on stderr. --model preisach fits a discrete Preisach model on a --grid K,M
 of half-widths and centres (default 16,16), its density smoothed (--smoothness, default chosen
 on held-out blocks) and non-negative unless --signed-weights; fit.json holds the grid
 (half_widths, centres, blur), the density, smoothness and the held-out scores. Both are

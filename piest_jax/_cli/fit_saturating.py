@@ -10,6 +10,7 @@ import sys
 import numpy as np
 
 from .._identification import identify_saturating
+from .._identification.covariance import table as parameter_table
 from .._identification.identify import identify
 from . import memory
 from . import output as _io
@@ -59,19 +60,27 @@ def run(args, rec, val, out, options: dict) -> int:
     except ValueError as e:
         raise CLIError(f"{args.data}: {' '.join(str(e).split())}") from None
     report = {**result.to_json(), **record_fields(rec, args)}
-    written = [_io.write_json(out / "fit.json", report), _io.write_text(out / "fit.md", _markdown(args, report)),
+    table = parameter_table(result.fit) if getattr(result.fit, "std_errors", None) is not None else ""
+    written = [_io.write_json(out / "fit.json", report),
+               _io.write_text(out / "fit.md", _markdown(args, report, table)),
                _io.save_figure(fit_figure(rec, np.asarray(result.fit.model(rec.u)), title="fit",
                                           mask=result.mask), out / "fit.png", dpi=110)]
     if result.validation is not None:
         pred = np.asarray(result.validation.raw.prediction)
         written.append(_io.save_figure(fit_figure(val, pred, title="validation"),
                                        out / "validation.png", dpi=110))
+    undetermined = report.get("undetermined") or []
+    if undetermined:
+        print(f"piest fit: warning: the record does not determine {', '.join(undetermined)} "
+              "(standard error beyond half the parameter's scale, or free in the Jacobian's "
+              "rank); predictions that depend on them are arbitrary: try fewer plays or terms, "
+              "or a record that reaches further into saturation", file=sys.stderr)
     for p in written:
         print(p)
     return 0
 
 
-def _markdown(args, report) -> str:
+def _markdown(args, report, table="") -> str:
     lines = [f"# piest fit: {args.data}", ""]
     if args.model == "gpi":
         g = report["output_function"]
@@ -84,6 +93,9 @@ def _markdown(args, report) -> str:
         lines += ["", "| term | amplitude | centre | scale |", "|---|---|---|---|"]
         lines += [f"| {k + 1} | {a:.6g} | {c:.6g} | {s:.6g} |"
                   for k, (a, c, s) in enumerate(zip(g["amplitudes"], g["centres"], g["scales"]))]
+        if table:
+            method = report["covariance"]["method"]
+            lines += ["", f"Standard errors ({method}):", "", table.rstrip("\n")]
     else:
         K, M = report["grid"]
         lines += [f"preisach, {K} x {M} grid ({'non-negative' if report['model']['monotone'] else 'signed'}"

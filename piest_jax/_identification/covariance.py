@@ -402,6 +402,24 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
                             eps=eps)
 
 
+def flagged_names(names, flags) -> tuple:
+    """The names whose flag is set (none when `flags` is None)."""
+    if flags is None:
+        return ()
+    return tuple(n for n, bad in zip(names, np.asarray(flags)) if bad)
+
+
+def report_keys(fit) -> dict:
+    """A fit's uncertainty as fit.json has it: `std_errors` by parameter name, `covariance`
+    (method, parameter names, matrix) and `undetermined` (names); none without a covariance."""
+    if fit.std_errors is None:
+        return {}
+    return {"std_errors": dict(zip(fit.parameter_names, fit.std_errors)),
+            "covariance": {"method": fit.covariance_method, "parameter_names": fit.parameter_names,
+                           "matrix": fit.covariance},
+            "undetermined": fit.undetermined_names}
+
+
 def play_flags(names, undetermined, n_plays):
     """Plays with an undetermined threshold, weight or initial state."""
     flags = np.zeros(n_plays, bool)

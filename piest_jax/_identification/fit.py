@@ -108,9 +108,7 @@ class PIFit(eqx.Module):
     @property
     def undetermined_names(self) -> tuple:
         """The names of the parameters the record does not determine."""
-        if self.undetermined is None:
-            return ()
-        return tuple(n for n, u in zip(self.parameter_names, np.asarray(self.undetermined)) if u)
+        return _cov.flagged_names(self.parameter_names, self.undetermined)
 
     @property
     def determined(self) -> bool:

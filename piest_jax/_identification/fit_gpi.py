@@ -31,6 +31,8 @@ import optimistix as optx
 from .._custom_types import Scalar, Signal, SignalLike
 from .._models.gpi import GeneralizedPI, output_function
 from .._operators.pi import PIOperator
+from . import covariance as _cov
+from . import gpi_covariance
 from .batches import map_in_batches
 from .fit import (
     Solver,
@@ -57,6 +59,12 @@ class GPIFit(eqx.Module):
     - `rmse`: root-mean-square residual on the fitted samples.
     - `result`: the optimistix result code of the chosen start; `n_steps` its solver steps.
     - `start_rmse` (starts,): every start's final RMSE.
+    - `parameter_names`, `parameter_values`, `covariance`, `std_errors`, `undetermined`,
+      `covariance_method`, `residual_std`: as [`PIFit`][]'s, for the generalized model's
+      parameters (`"thresholds[1]"`, ..., `"weights[0]"`, ..., `"output.amplitudes[0]"`, ...,
+      `"output.centres[0]"`, ..., `"output.scales[1]"`, ..., `"offset"`, and
+      `"initial_states[1]"`, ... when fitted; s_1 = 1 is fixed and not among them); None when
+      the fit was asked for no covariance.
     """
 
     model: GeneralizedPI
@@ -64,6 +72,23 @@ class GPIFit(eqx.Module):
     result: optx.RESULTS
     n_steps: jax.Array
     start_rmse: jax.Array
+    parameter_names: tuple = eqx.field(static=True, default=())
+    parameter_values: jax.Array | None = None
+    covariance: jax.Array | None = None
+    std_errors: jax.Array | None = None
+    undetermined: jax.Array | None = None
+    covariance_method: str | None = eqx.field(static=True, default=None)
+    residual_std: Scalar | None = None
+
+    @property
+    def undetermined_names(self) -> tuple:
+        """The names of the parameters the record does not determine."""
+        return _cov.flagged_names(self.parameter_names, self.undetermined)
+
+    @property
+    def determined(self) -> bool:
+        """True when the record determines every fitted parameter."""
+        return not self.undetermined_names
 
     @property
     def result_name(self) -> str:
@@ -150,6 +175,7 @@ def fit_gpi(
     rtol: float = 1e-6,
     atol: float = 1e-9,
     starts_at_once: int | None = None,
+    covariance: str | None = "newey-west",
 ) -> GPIFit:
     """Fit a generalized PI model y = g(P[u]) (thresholds, positive weights, the output
     function's amplitudes, centres and scales, and the offset) to one record, jointly.
@@ -172,12 +198,16 @@ def fit_gpi(
     - `max_steps`, `rtol`, `atol`: the solver's budget and tolerances (normalised units).
     - `starts_at_once`: starts solved together under `vmap` (memory grows with it times T);
       default as for [`fit_pi`][].
+    - `covariance`: `"newey-west"` (default), `"gauss-newton"` or None, as for [`fit_pi`][]
+      (`gpi_covariance.py` names the parameters and their scales).
 
     **Returns:** a [`GPIFit`][piest_jax.GPIFit] in the data's units. Raises `ValueError` for
     mismatched or non-finite data, an input with zero range, or more parameters than fitted
     samples.
     """
     check_solver(solver)
+    if covariance is not None and covariance not in _cov.METHODS:
+        raise ValueError(f"unknown covariance {covariance!r}; choose one of {_cov.METHODS} or None")
     if not isinstance(n_terms, (int, np.integer)) or n_terms < 1:
         raise ValueError(f"`n_terms` must be a positive whole number, got {n_terms!r}")
     if not isinstance(n_starts, (int, np.integer)) or n_starts < 1:
@@ -211,6 +241,11 @@ def fit_gpi(
     pi = PIOperator(r * s.u_half, w, s.u_mid + s.u_half * p.get("initial_states", x0))
     model = GeneralizedPI(pi, s.y_half * jnp.exp(log_a), c + s.u_mid * jnp.sum(w),
                           jnp.exp(log_s), s.y_mid + s.y_half * p["offset"])
+    fields = {}
+    if covariance is not None:
+        T = jnp.shape(u)[0]
+        fields = gpi_covariance.fields(covariance, model, u, y, np.asarray(mask)[:T],
+                                       fit_initial_states)
     return GPIFit(model=model, rmse=jnp.sqrt(loss[best]) * s.y_half,
                   result=jax.tree.map(lambda a: a[best], results), n_steps=steps[best],
-                  start_rmse=jnp.sqrt(loss) * s.y_half)
+                  start_rmse=jnp.sqrt(loss) * s.y_half, **fields)

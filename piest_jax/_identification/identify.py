@@ -18,6 +18,7 @@ import dataclasses
 import numpy as np
 
 from .._data.record import Record
+from . import covariance as _cov
 from .band import PredictionBand, prediction_band
 from .compare import Comparison, compare
 from .fit import PIFit, fit_pi
@@ -154,10 +155,7 @@ def _pi_keys(f: PIFit, model) -> dict:
         "n_plays": f.n_plays,
         "rmse": f.rmse,
         "flagged": f.flagged,
-        "std_errors": dict(zip(f.parameter_names, f.std_errors)),
-        "covariance": {"method": f.covariance_method, "parameter_names": f.parameter_names,
-                       "matrix": f.covariance},
-        "undetermined": f.undetermined_names,
+        **_cov.report_keys(f),
     }
     if f.creep is not None:
         keys["creep"] = {

@@ -11,6 +11,7 @@ states were neither given nor fitted). Options the model would ignore are refuse
 import numpy as np
 
 from .._data.record import Record
+from . import covariance as _cov
 from .compare import Comparison, fit_percent
 from .fit_gpi import GPIFit, fit_gpi
 from .fit_preisach import PreisachFit, fit_preisach
@@ -109,6 +110,7 @@ def report_keys(fit: GPIFit | PreisachFit, positive_weights: bool) -> dict:
             "model": {"structure": "gpi", "n_plays": m.n_plays, "n_terms": m.n_terms},
             "n_plays": m.n_plays,
             "rmse": float(fit.rmse),
+            **_cov.report_keys(fit),
         }
     K, M = fit.model.half_widths.shape[0], fit.model.centres.shape[0]
     return {
