@@ -76,7 +76,10 @@ parameters (output.amplitudes[k], output.centres[k], output.scales[k]: s_1 = 1 i
 the value +- std error table in fit.md and on stderr. --model preisach fits a discrete Preisach model on a --grid K,M
 of half-widths and centres (default 16,16), its density smoothed (--smoothness, default chosen
 on held-out blocks) and non-negative unless --signed-weights; fit.json holds the grid
-(half_widths, centres, blur), the density, smoothness and the held-out scores. Both are
+(half_widths, centres, blur), the density, smoothness, the held-out scores, and std_errors,
+covariance and undetermined for its cells (density[k,m]) and offset: the penalised estimate's
+spread over the noise at the chosen smoothness (a cell held at 0 by the non-negativity has
+std error 0). Both are
 invertible by `piest compensate` (a signed Preisach density is not); neither is among
 --model auto's choices, and options they would ignore are refused.
 

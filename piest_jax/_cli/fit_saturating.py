@@ -19,6 +19,11 @@ from ._common import CLIError, positive_int, record_fields
 TERMS, GRID = identify_saturating.TERMS, identify_saturating.GRID
 
 
+_REMEDY = {"gpi": "try fewer plays or terms, or a record that reaches further into saturation",
+           "preisach": "the input never switches those relays apart; try a coarser --grid, or a "
+                       "record that covers the input range with reversals of every size"}
+
+
 def grid_arg(text: str) -> tuple[int, int]:
     parts = text.split(",")
     try:
@@ -73,8 +78,8 @@ def run(args, rec, val, out, options: dict) -> int:
     if undetermined:
         print(f"piest fit: warning: the record does not determine {', '.join(undetermined)} "
               "(standard error beyond half the parameter's scale, or free in the Jacobian's "
-              "rank); predictions that depend on them are arbitrary: try fewer plays or terms, "
-              "or a record that reaches further into saturation", file=sys.stderr)
+              f"rank); predictions that depend on them are arbitrary: {_REMEDY[args.model]}",
+              file=sys.stderr)
     for p in written:
         print(p)
     return 0
@@ -101,6 +106,12 @@ def _markdown(args, report, table="") -> str:
         lines += [f"preisach, {K} x {M} grid ({'non-negative' if report['model']['monotone'] else 'signed'}"
                   f" density), smoothness {report['smoothness']:.3g}; RMSE {report['rmse']:.4g}.",
                   "", "The density is in fit.json (`density`, half-widths by centres)."]
+        if "std_errors" in report:
+            bad = report["undetermined"]
+            lines += ["", f"Its standard errors ({report['covariance']['method']}, at this "
+                      "smoothness) are in fit.json (`std_errors`, `covariance`); "
+                      f"{len(bad)} of its {len(report['std_errors'])} parameters are not "
+                      "determined by the record" + (f": {', '.join(bad)}." if bad else ".")]
     lines += ["", f"offset {float(report['offset']):.6g}", ""]
     print("\n".join(lines[2:]), file=sys.stderr)
     return "\n".join(lines)

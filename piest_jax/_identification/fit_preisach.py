@@ -44,6 +44,8 @@ from .. import _checks
 from .._custom_types import SignalLike
 from .._models.preisach import Preisach, relay_columns
 from .._operators.play import Method, play
+from . import covariance as _cov
+from . import preisach_covariance
 
 DEFAULT_SMOOTHNESS = tuple(float(v) for v in np.logspace(-7, 1, 9))
 
@@ -59,6 +61,12 @@ class PreisachFit(eqx.Module):
     - `candidates`: the smoothness values scored on held-out blocks (empty when given).
     - `held_out_rmse`: the held-out RMSE for each candidate (original units).
     - `n_blocks`: the number of contiguous held-out blocks.
+    - `parameter_names` (`"density[k,m]"` for the cells of the Preisach triangle, row-major,
+      then `"offset"`), `parameter_values`, `covariance`, `std_errors`, `undetermined`,
+      `covariance_method`, `residual_std`: as [`PIFit`][]'s, from the penalised estimate's
+      sandwich (`preisach_covariance.py`); None when the fit was asked for no covariance.
+    - `effective_parameters`: tr((G + P)⁻¹ G), the number of parameters the smoothed fit
+      spends (fewer than the cells); None without a covariance.
     """
 
     model: Preisach
@@ -67,6 +75,19 @@ class PreisachFit(eqx.Module):
     candidates: tuple
     held_out_rmse: tuple
     n_blocks: int = eqx.field(static=True)
+    parameter_names: tuple = eqx.field(static=True, default=())
+    parameter_values: jax.Array | None = None
+    covariance: jax.Array | None = None
+    std_errors: jax.Array | None = None
+    undetermined: jax.Array | None = None
+    covariance_method: str | None = eqx.field(static=True, default=None)
+    residual_std: float | None = None
+    effective_parameters: float | None = None
+
+    @property
+    def undetermined_names(self) -> tuple:
+        """The names of the parameters the record does not determine."""
+        return _cov.flagged_names(self.parameter_names, self.undetermined)
 
 
 def _second_differences(n: int) -> np.ndarray:
@@ -196,6 +217,7 @@ def fit_preisach(
     n_blocks: int = 5,
     chunk: int = 2048,
     method: Method = "auto",
+    covariance: str | None = "newey-west",
 ) -> PreisachFit:
     """Fit a discrete Preisach model to one record by smoothness-penalised least squares.
 
@@ -218,6 +240,9 @@ def fit_preisach(
     - `n_blocks`: contiguous blocks for the held-out choice (≥ 2 when choosing).
     - `chunk`: samples per accumulation step (memory ∝ chunk · K · M).
     - `method`: the play bank's method (`"auto"`: the compiled kernel on CPU when built).
+    - `covariance`: `"newey-west"` (default), `"gauss-newton"` or None: the density's and the
+      offset's covariance over the noise at the chosen smoothness (`preisach_covariance.py`;
+      one more pass over the record).
 
     **Returns:** a [`PreisachFit`][piest_jax.PreisachFit] with the model in the data's units.
     """
@@ -225,6 +250,8 @@ def fit_preisach(
                         ("n_blocks", n_blocks, 1), ("chunk", chunk, 1)):
         if not _checks.is_whole(v) or v < lo:
             raise ValueError(f"`{name}` must be an integer >= {lo}, got {v!r}")
+    if covariance is not None and covariance not in _cov.METHODS:
+        raise ValueError(f"unknown covariance {covariance!r}; choose one of {_cov.METHODS} or None")
     u = np.asarray(_checks.finite(_checks.signal(u, "u"), "u"), dtype=np.float64)
     y = np.asarray(_checks.finite(_checks.signal(y, "y"), "y"), dtype=np.float64)
     if u.shape != y.shape:
@@ -315,5 +342,36 @@ def fit_preisach(
         blur=jnp.asarray(d * u_half, dtype),
         method=method,
     )
+    fields = {}
+    if covariance is not None:
+        grid = (r, c, d, (x0 - u_mid) / u_half)
+        fields = _covariance(covariance, model, theta, Gt, pen(lam), active, monotone, u, y, w,
+                             (u_mid, u_half, y_mid, y_half), grid, chunk, method)
     return PreisachFit(model=model, rmse=rmse, smoothness=lam, candidates=cands,
-                       held_out_rmse=tuple(scores), n_blocks=nb)
+                       held_out_rmse=tuple(scores), n_blocks=nb, **fields)
+
+
+def _covariance(method, model, theta, G, pen, active, monotone, u, y, w, scales, grid, chunk,
+                play_method) -> dict:
+    """`PreisachFit`'s covariance fields (see `preisach_covariance.py`)."""
+    u_mid, u_half, y_mid, y_half = scales
+    e = (y - np.asarray(model(u), np.float64)) / y_half
+    used = w > 0
+    free = np.ones(theta.shape[0], bool)
+    if monotone:
+        free[:-1] = theta[:-1] > 0
+    blocks = window = None
+    if method == "newey-west":
+        window = _cov.bandwidth(e[used])
+        keep = np.append(np.flatnonzero(active.ravel()), active.size)
+        dtype = jnp.result_type(float)
+        blocks = np.asarray(preisach_covariance.score_blocks(
+            jnp.asarray((u - u_mid) / u_half, dtype), jnp.asarray(w * e, dtype),
+            *(jnp.asarray(a, dtype) for a in grid), jnp.asarray(keep), window,
+            max(int(chunk), window), play_method), np.float64)
+    K, M = active.shape
+    names = [f"density[{k},{m}]" for k in range(K) for m in range(M) if active[k, m]] + ["offset"]
+    out = preisach_covariance.fields(method, G, G + pen, free, int(used.sum()),
+                                     float(np.sum(w * e * e)), y_half, names, blocks, window)
+    values = np.append(theta[:-1] * y_half, y_mid + y_half * theta[-1])
+    return {**out, "parameter_values": jnp.asarray(values)}

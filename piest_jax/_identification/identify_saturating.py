@@ -121,4 +121,5 @@ def report_keys(fit: GPIFit | PreisachFit, positive_weights: bool) -> dict:
         "held_out_rmse": list(fit.held_out_rmse),
         "n_blocks": fit.n_blocks,
         "rmse": float(fit.rmse),
+        **_cov.report_keys(fit),
     }
