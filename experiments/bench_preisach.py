@@ -2,9 +2,9 @@
 
 The input is a random sequence of reversal points (every tenth pair a full excursion), 50 samples
 per leg, and the output tanh(2u) plus noise; the smoothness is chosen on 5 held-out blocks (9
-candidates), the default, and so is the density's Newey-West covariance. Each row is the minimum over repeats after one warm-up call that also
-compiles the accumulation (`first_call_seconds` keeps that call), wall clock, on whatever CPU this
-runs on (the JSON records the core count).
+candidates), the default, and so is the density's Newey-West covariance. Each row is the minimum
+over repeats after one warm-up call that also compiles the accumulation (`first_call_seconds`
+keeps that call), wall clock, on whatever CPU this runs on (the JSON records the core count).
 
 Run: python experiments/bench_preisach.py [--repeats N]
 """

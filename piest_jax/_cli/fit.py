@@ -79,7 +79,8 @@ on held-out blocks) and non-negative unless --signed-weights; fit.json holds the
 (half_widths, centres, blur), the density, smoothness, the held-out scores, and std_errors,
 covariance and undetermined for its cells (density[k,m]) and offset: the penalised estimate's
 spread over the noise at the chosen smoothness (a cell held at 0 by the non-negativity has
-std error 0). Both are
+std error 0). For both, fit.png and validation.png shade the 95 % measurement band and
+fit.json has validation_band_coverage (of the raw prediction, the only one they have). Both are
 invertible by `piest compensate` (a signed Preisach density is not); neither is among
 --model auto's choices, and options they would ignore are refused.
 

@@ -10,6 +10,7 @@ import sys
 import numpy as np
 
 from .._identification import identify_saturating
+from .._identification.band import prediction_band
 from .._identification.covariance import table as parameter_table
 from .._identification.identify import identify
 from . import memory
@@ -69,10 +70,13 @@ def run(args, rec, val, out, options: dict) -> int:
     written = [_io.write_json(out / "fit.json", report),
                _io.write_text(out / "fit.md", _markdown(args, report, table)),
                _io.save_figure(fit_figure(rec, np.asarray(result.fit.model(rec.u)), title="fit",
-                                          mask=result.mask), out / "fit.png", dpi=110)]
-    if result.validation is not None:
-        pred = np.asarray(result.validation.raw.prediction)
-        written.append(_io.save_figure(fit_figure(val, pred, title="validation"),
+                                          mask=result.mask, band=_band(result.fit, rec.u)),
+                               out / "fit.png", dpi=110)]
+    v = result.validation
+    if v is not None:
+        band = None if v.raw_band is None else v.raw_band.interval()
+        written.append(_io.save_figure(fit_figure(val, np.asarray(v.raw.prediction),
+                                                  title="validation", band=band),
                                        out / "validation.png", dpi=110))
     undetermined = report.get("undetermined") or []
     if undetermined:
@@ -83,6 +87,13 @@ def run(args, rec, val, out, options: dict) -> int:
     for p in written:
         print(p)
     return 0
+
+
+def _band(fit, u):
+    """The 95 % measurement band of the fit on `u`, or None without a covariance."""
+    if getattr(fit, "covariance", None) is None:
+        return None
+    return prediction_band(fit, u).interval()
 
 
 def _markdown(args, report, table="") -> str:

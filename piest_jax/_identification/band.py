@@ -22,8 +22,11 @@ from jax import lax
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
 from . import covariance as _cov
+from .band_saturating import band_parts, check_input
 from .fit import PIFit, run
 from .fit_data import Scales
+from .fit_gpi import GPIFit
+from .fit_preisach import PreisachFit
 
 
 class PredictionBand(eqx.Module):
@@ -75,8 +78,8 @@ class PredictionBand(eqx.Module):
         return float(np.mean((y >= lower) & (y <= upper)))
 
 
-def prediction_band(fit: PIFit, u: SignalLike, *, initial_states=None, lag_states=None, offset=None,
-                    chunk: int = _cov.CHUNK) -> PredictionBand:
+def prediction_band(fit: PIFit | GPIFit | PreisachFit, u: SignalLike, *, initial_states=None,
+                    lag_states=None, offset=None, chunk: int = _cov.CHUNK) -> PredictionBand:
     """The linearised prediction band of a fitted model on an input.
 
     Per sample, the prediction's standard error sqrt(J_t Σ J_tᵀ), J_t the Jacobian of the
@@ -93,7 +96,9 @@ def prediction_band(fit: PIFit, u: SignalLike, *, initial_states=None, lag_state
 
     **Arguments:**
 
-    - `fit`: a [`PIFit`][] with a covariance (not `covariance=None`).
+    - `fit`: a [`PIFit`][] with a covariance (not `covariance=None`), or a
+      [`GPIFit`][piest_jax.GPIFit] or [`PreisachFit`][piest_jax.PreisachFit] with one
+      (`band_saturating.py`; no `lag_states` or `offset` then).
     - `u`: the input (T,).
     - `initial_states`: the plays' states before the first sample (scalar or (n,)), as
       `fit(u, initial_states)` takes them; default the fitted ones.
@@ -106,8 +111,17 @@ def prediction_band(fit: PIFit, u: SignalLike, *, initial_states=None, lag_state
     given lag states and offset). Raises `ValueError` for a fit without a covariance, a
     non-finite or empty input, states of the wrong size or a non-positive `chunk`.
     """
+    if isinstance(fit, GPIFit | PreisachFit):
+        if lag_states is not None or offset is not None:
+            raise ValueError(f"a {type(fit).__name__} has no creep or separate offset: give "
+                             "neither `lag_states` nor `offset`")
+        if not _checks.is_whole(chunk) or chunk < 1:
+            raise ValueError(f"`chunk` must be a positive whole number, got {chunk!r}")
+        pred, var, sigma = band_parts(fit, check_input(u), initial_states, chunk)
+        return PredictionBand(pred, jnp.sqrt(jnp.maximum(var, 0.0)), sigma)
     if not isinstance(fit, PIFit):
-        raise ValueError(f"`fit` must be a PIFit (from fit_pi), got {type(fit).__name__}")
+        raise ValueError("`fit` must be a PIFit, GPIFit or PreisachFit (from fit_pi, fit_gpi, "
+                         f"fit_preisach), got {type(fit).__name__}")
     if fit.covariance is None or fit.residual_std is None:
         raise ValueError("the fit has no covariance: fit it with `covariance` 'newey-west' or "
                          "'gauss-newton', not None")

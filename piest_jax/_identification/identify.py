@@ -143,8 +143,9 @@ class Identification:
             report["validation_rmse_ic"] = float(v.ic.rmse)
             # The fit percentage of the prediction with the record's initial conditions.
             report["validation_fit_percent"] = float(v.ic.fit_percent)
-            if v.raw_band is not None:
-                report["validation_band_coverage"] = v.band_coverage
+        if v is not None and v.raw_band is not None:
+            report["validation_band_coverage"] = v.band_coverage
+            if v.ic_band is not None:
                 report["validation_band_coverage_ic"] = v.band_coverage_ic
         return report
 
@@ -375,7 +376,14 @@ def identify(
         if validation is not None:
             raw, convention = validation_comparison(fit, validation, initial_states,
                                                     fit_initial_states)
-            checked = Validation(validation, raw, None, starts_at_rest(validation.u), convention)
+            band = None
+            if fit.covariance is not None:
+                states = None
+                if isinstance(fit, GPIFit) and not fit_initial_states:
+                    states = validation.u[0] if initial_states is None else initial_states
+                band = prediction_band(fit, validation.u, initial_states=states)
+            checked = Validation(validation, raw, None, starts_at_rest(validation.u), convention,
+                                 band)
         return Identification(fit, record, None, checked, solver, fit_from, positive_weights)
     p = plan(record, fit_from=fit_from, **options)
     fit_options = dict(

@@ -1,0 +1,78 @@
+"""Prediction bands of the models that saturate: the generalized PI and the Preisach model.
+
+As for the PI fit ([`prediction_band`][]): linearised at the fitted parameters, the prediction's
+variance on an input is J_t Σ J_tᵀ, Σ the fit's covariance, and a new measurement adds σ². For the
+generalized PI, J is `gpi_covariance.jacobian` on the input (the fit's play scan and output
+function, forward mode; it holds T x p numbers). The Preisach model is linear in its density and
+offset, so J's rows are its relays (and a 1): they are formed chunk by chunk as the plays run, so
+memory does not grow with the input's length.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from .. import _checks
+from .._models.preisach import relay_columns
+from .._operators.play import Method, play
+from . import covariance as _cov
+from . import gpi_covariance
+from .fit_gpi import GPIFit
+from .fit_preisach import PreisachFit, triangle
+
+
+def band_parts(fit: GPIFit | PreisachFit, u, initial_states=None, chunk: int = _cov.CHUNK):
+    """The prediction (T,), its variance diag(J Σ Jᵀ) (T,) and σ for a saturating fit on `u`.
+
+    **Arguments:** `fit`; `u` (T,), finite; `initial_states`, the plays' states before the first
+    sample (scalar or (n,)), taken as known; default the model's; `chunk`, samples per chunk
+    (the Preisach model's relays).
+    """
+    if fit.covariance is None or fit.residual_std is None:
+        raise ValueError("the fit has no covariance: fit it with `covariance` 'newey-west' or "
+                         "'gauss-newton', not None")
+    model = fit.model if initial_states is None else fit.model.with_initial_states(initial_states)
+    dtype = jnp.result_type(u, model.offset)
+    u = jnp.asarray(u, dtype)
+    cov = np.asarray(fit.covariance, np.float64)
+    if isinstance(fit, GPIFit):
+        n, k = model.n_plays, model.n_terms
+        states = any(name.startswith("initial_states") for name in fit.parameter_names)
+        if states and initial_states is not None:
+            # Given states are known: their parameters add no variance.
+            known = np.asarray([name.startswith("initial_states") for name in fit.parameter_names])
+            cov = np.where(known[:, None] | known[None, :], 0.0, cov)
+        theta = gpi_covariance.flatten(model, states)
+        x0 = jnp.broadcast_to(model.pi.initial_states, (n,)).astype(dtype)
+        pred, J = gpi_covariance.jacobian(theta.astype(dtype), u, x0, n, k, states)
+        var = jnp.sum((J @ jnp.asarray(cov, dtype)) * J, axis=1)
+    else:
+        K, M = model.shape
+        keep = np.append(np.flatnonzero(triangle(K, M).ravel()), K * M)
+        x0 = model._start(u).astype(dtype)
+        pred = model(u)
+        var = _preisach_variance(u, model.half_widths.astype(dtype), model.centres.astype(dtype),
+                                 model.blur.astype(dtype), x0, jnp.asarray(keep),
+                                 jnp.asarray(cov, dtype), min(int(chunk), u.shape[0]),
+                                 model.method)
+    return pred, var, jnp.asarray(fit.residual_std, dtype)
+
+
+@eqx.filter_jit
+def _preisach_variance(u, half_widths, centres, blur, x0, keep, cov, chunk: int, method: Method):
+    T = u.shape[0]
+
+    def body(x, uu):
+        H = play(uu, half_widths, x, method=method)
+        S = jnp.concatenate([relay_columns(H, centres, blur), jnp.ones((chunk, 1), u.dtype)], 1)
+        S = S[:, keep]
+        return H[-1], jnp.sum((S @ cov) * S, axis=1)
+
+    _, var = lax.scan(body, x0, _cov.chunked(u, u[-1], chunk))
+    return var.reshape(-1)[:T]
+
+
+def check_input(u):
+    """The input as a finite signal (T,)."""
+    return _checks.finite(_checks.signal(u, "u"), "u")
