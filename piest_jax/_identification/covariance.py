@@ -37,7 +37,7 @@ import numpy as np
 from jax import lax
 
 from .fit_data import Scales
-from .time_constants import lag_log_tau
+from .time_constants import LAG_RATIO, lag_log_tau
 
 METHODS = ("newey-west", "gauss-newton")
 # Records longer than this (fitted samples) accumulate what the covariance needs chunk by chunk
@@ -46,6 +46,9 @@ LONG_RECORD = 2**16
 CHUNK = 4096
 RELATIVE_LIMIT = 0.5
 NULL_SHARE = 1e-4
+# A creep lag whose squared free parameter (its log time constant's gap above its bound) is
+# below this sits on the bound (`on_bounds`).
+HOLD = 2e-3
 
 
 class Layout(eqx.Module):
@@ -339,7 +342,7 @@ def scales(names, values, u_half, y_half):
 
 
 def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, lag_base, fit_states,
-               n_plays, n_lags, positive_weights) -> dict:
+               n_plays, n_lags) -> dict:
     """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
     padded; `r`, `w` its thresholds and weights): the Jacobian over every padded parameter (one
     compilation per padded shape), then the columns of the parameters in use."""
@@ -353,8 +356,6 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, la
     total = np.sum(parts[1])
     if layout.k:
         c = p["lag_weights"]
-        if positive_weights:
-            c = np.logaddexp(0.0, c)  # the fit's softplus
         c = c if lag_active is None else c * np.asarray(lag_active)
         parts += [np.exp(np.asarray(lag_log_tau(p["lag_theta"], lag_base))) * dt, c * yh / uh]
         total = total + np.sum(parts[-1])
@@ -366,25 +367,63 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, la
     used = np.asarray(mask) > 0
     names, index = layout.names(n_plays, n_lags)
     eps = np.finfo(un.dtype).eps
+    gaps = np.asarray(p["lag_theta"])[:n_lags] ** 2 if layout.k else np.zeros(0)
+    T, held = on_bounds(names, gaps)
     if int(used.sum()) > LONG_RECORD:
         cov, se, deficient, info = _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0,
-                                                       z0, dt, index, eps, CHUNK)
+                                                       z0, dt, index, eps, CHUNK, T)
     else:
         pred, J = jacobian(run, layout, theta, un, s, x0, z0, dt)
         m = np.asarray(mask)[used]
         y = np.asarray(yn)[used] * yh + ym
         Ju = np.asarray(J)[used][:, index] * m[:, None]
         e = (y - np.asarray(pred)[used]) * m
-        cov, se, deficient, info = estimate(Ju, e, method=method, eps=eps)
+        cov, se, deficient, info = estimate(Ju @ T, e, method=method, eps=eps)
+    # Back to every parameter: a held time constant follows the one below it (or none).
+    cov = T @ cov @ T.T
+    deficient = (np.abs(T) > 0) @ deficient > 0
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    se[deficient] = np.inf
     values = theta[index]
     scale = scales(names, values, uh, yh)
     undetermined = deficient | ~(se < RELATIVE_LIMIT * scale)
     return dict(parameter_names=names, parameter_values=jnp.asarray(values), covariance=jnp.asarray(cov),
                 std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
-                covariance_method=method, residual_std=jnp.asarray(info["sigma"], theta.dtype))
+                covariance_method=method, residual_std=jnp.asarray(info["sigma"], theta.dtype),
+                held=jnp.asarray(held))
 
 
-def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt, index, eps, chunk):
+def on_bounds(names, gaps):
+    """Which creep time constants sit on their bounds, and the map from the free parameters.
+
+    A lag's free parameter θ_k (`time_constants.py`) is the square root of its time constant's
+    gap above its bound, in log τ: the floor for the fastest lag, √10 times the previous lag for
+    the others. A gap below `HOLD` (τ within 0.2 % of its bound) means the data pushed the lag
+    onto the bound, where the constraint, not the data, fixes it: the fastest lag's time
+    constant is then a constant, another lag's is √10 times the previous one's. The covariance
+    treats such a time constant as the constraint does (the estimate's spread is that of the
+    parameters it follows), rather than as a free parameter the data barely move, which its
+    Jacobian column would make undetermined.
+
+    **Arguments:** `names` (p,), the fit's parameter names; `gaps` (K,), the lags' θ_k².
+
+    **Returns:** `(T, held)`: T (p, q) with the parameters = T · (the q free ones), locally, and
+    `held` (p,) booleans.
+    """
+    p = len(names)
+    A = np.eye(p)
+    held = np.zeros(p, bool)
+    where = {n: i for i, n in enumerate(names)}
+    for k, gap in enumerate(gaps):
+        if gap >= HOLD:
+            continue
+        i = where[f"creep.time_constants[{k}]"]
+        held[i] = True
+        A[i] = LAG_RATIO * A[where[f"creep.time_constants[{k - 1}]"]] if k else 0.0
+    return A[:, ~held], held
+
+
+def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt, index, eps, chunk, T):
     """`estimate`'s covariance from [`moments`][], on a record too long to hold J."""
     theta = jnp.asarray(theta)
     m = jnp.asarray(mask, theta.dtype)
@@ -398,6 +437,7 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
         window = bandwidth(e)
     JtJ, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
     JtJ, blocks = np.asarray(JtJ)[np.ix_(index, index)], np.asarray(blocks)[np.ix_(index, index)]
+    JtJ, blocks = T.T @ JtJ @ T, T.T @ blocks @ T
     return estimate_moments(JtJ, blocks, float(ete), int(used.sum()), method=method, window=window,
                             eps=eps)
 
@@ -417,7 +457,8 @@ def report_keys(fit) -> dict:
     return {"std_errors": dict(zip(fit.parameter_names, fit.std_errors)),
             "covariance": {"method": fit.covariance_method, "parameter_names": fit.parameter_names,
                            "matrix": fit.covariance},
-            "undetermined": fit.undetermined_names}
+            "undetermined": fit.undetermined_names,
+            **({"held_on_bounds": fit.held_names} if getattr(fit, "held", None) is not None else {})}
 
 
 def play_flags(names, undetermined, n_plays):
@@ -437,8 +478,10 @@ def table(fit) -> str:
     **Returns:** the table's text (one header, one row per parameter).
     """
     rows = ["| parameter | value | std error | |", "|---|---|---|---|"]
+    held = set(getattr(fit, "held_names", ()))
     for n, v, s, bad in zip(fit.parameter_names, np.asarray(fit.parameter_values),
                             np.asarray(fit.std_errors), np.asarray(fit.undetermined)):
         se = f"± {s:.4g}" if np.isfinite(s) else "undetermined (rank)"
-        rows.append(f"| {n} | {v:.6g} | {se} | {'undetermined' if bad else ''} |")
+        note = "undetermined" if bad else "on its bound" if n in held else ""
+        rows.append(f"| {n} | {v:.6g} | {se} | {note} |")
     return "\n".join(rows) + "\n"

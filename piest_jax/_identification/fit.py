@@ -85,6 +85,10 @@ class PIFit(eqx.Module):
     - `residual_std`: σ = sqrt(Σe²/(N − p)) over the N fitted samples, the residuals' standard
       deviation the covariance uses (and a new measurement's band adds, see
       [`prediction_band`][]); None with no covariance.
+    - `held` (p,) bool: creep time constants the fit left on their bounds (the fastest at
+      `min_time_constant`, another at √10 times the one before): the constraint, not the data,
+      sets them, and the covariance treats them so (0 for the fastest, √10 times the previous
+      one's for another); None with no covariance.
     """
 
     thresholds: Thresholds
@@ -104,6 +108,12 @@ class PIFit(eqx.Module):
     undetermined: Bool[Array, " params"] | None = None
     covariance_method: str | None = eqx.field(static=True, default=None)
     residual_std: Scalar | None = None
+    held: Bool[Array, " params"] | None = None
+
+    @property
+    def held_names(self) -> tuple:
+        """The creep time constants that sit on their bounds (see `covariance.on_bounds`)."""
+        return _cov.flagged_names(self.parameter_names, self.held)
 
     @property
     def undetermined_names(self) -> tuple:
@@ -188,9 +198,9 @@ def _constrained(params, positive_weights, r_bound=None, active=None):
     return r, w
 
 
-def _lag_weights(params, positive_weights, lag_active=None):
-    """The lags' weights c_k from their free parameters: positive (softplus) with positive weights."""
-    c = jax.nn.softplus(params["lag_weights"]) if positive_weights else params["lag_weights"]
+def _lag_weights(params, lag_active=None):
+    """The lags' weights c_k, free in sign (see `fit_pi`'s `n_lags`)."""
+    c = params["lag_weights"]
     return c if lag_active is None else c * lag_active
 
 
@@ -202,7 +212,7 @@ def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None
     x0 = params.get("initial_states", x0)
     if "lag_theta" not in params:
         return run(u, r, w, params["offset"], x0)
-    c = _lag_weights(params, positive_weights, lag_active)
+    c = _lag_weights(params, lag_active)
     log_tau = lag_log_tau(params["lag_theta"], lag_base)
     return run(u, r, w, params["offset"], x0, log_tau, c, params.get("lag_states", z0))
 
@@ -313,8 +323,6 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
         params["initial_states"] = x0
     if log_tau0 is not None:
         cw = sol[n:-1]
-        if positive_weights:
-            cw = _softplus_inv(jnp.maximum(cw, 1e-2 / n_on))
         theta = lag_theta(log_tau0, lag_base)
         if lag_active is not None:
             cw, theta = cw * lag_active, theta * lag_active
@@ -432,11 +440,13 @@ def fit_pi(
       BFGS fit stopped by `max_steps` far from its optimum can amplify that rounding), at the cost
       of `pad_plays` plays' work per step. Not with `thresholds0`.
     - `n_lags`: creep lags K (a [`Creep`][] of K first-order lags of u, time constants and weights
-      fitted with everything else; 2K more parameters, 3K with `fit_initial_states`). With
-      `positive_weights` the creep weights are positive too, as in the creep operator of the
-      modified PI model (the output keeps moving the way the input last moved) and as the
-      inverse needs (the composite's slope stays positive); otherwise they are free in sign.
-      The lags start at rest at u_0 unless `fit_initial_states`.
+      fitted with everything else; 2K more parameters, 3K with `fit_initial_states`). The creep
+      weights are free in sign whatever `positive_weights` says: a positive one is the creep of
+      the modified PI model (the output keeps moving the way the input last moved), a negative
+      one an output that relaxes back, as a measured piezo's can (`docs/fitting.md`); the
+      inverse needs only the identity play's weight plus the lags' present-input share to stay
+      positive, which [`feedforward`][] checks. The lags start at rest at u_0 unless
+      `fit_initial_states`.
     - `dt`: the sampling interval, the time unit of the creep's time constants.
     - `time_constants0`: (K,) starting time constants (default [`initial_time_constants`][]
       over the fitted stretch, each start at another place in the lags' bins); the starts after
@@ -560,7 +570,7 @@ def fit_pi(
     offset = s.y_mid + s.y_half * p["offset"] - s.u_mid * jnp.sum(weights)
     creep = None
     if n_lags > 0:
-        cw = (_lag_weights(p, positive_weights)[:n_lags]) * s.y_half / s.u_half
+        cw = _lag_weights(p)[:n_lags] * s.y_half / s.u_half
         offset = offset - s.u_mid * jnp.sum(cw)
         tau = jnp.exp(lag_log_tau(p["lag_theta"], lag_base)[:n_lags]) * dt
         zs = None
@@ -570,8 +580,7 @@ def fit_pi(
     fields = {}
     if covariance is not None:
         fields = _cov.fit_fields(covariance, run, p, r_all, w_all, un, yn, mask, s, x0, z0, dt,
-                                 lag_active, lag_base, fit_initial_states, n_plays, n_lags,
-                                 positive_weights)
+                                 lag_active, lag_base, fit_initial_states, n_plays, n_lags)
     unexcited_plays = thresholds >= s.u_half
     flagged = unexcited_plays
     if fields:
