@@ -53,12 +53,13 @@ from .fit_data import prepare as _prepare
 from .solvers import SOLVERS as SOLVERS
 from .solvers import check_solver, least_squares_solver, result_name
 from .time_constants import initial_time_constants, lag_log_tau, lag_theta, shortest_time_constant
+from .uncertainty import Uncertainty
 
 # A solver name from `SOLVERS` or an optimistix solver object (`solvers.py`).
 Solver = Literal["lm", "gn", "bfgs"] | optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser
 
 
-class PIFit(eqx.Module):
+class PIFit(Uncertainty):
     """A fitted PI model y = Σ_j w_j H_{r_j}[u] + offset, in the data's units.
 
     **Fields:**
@@ -101,24 +102,12 @@ class PIFit(eqx.Module):
     n_steps: Array
     start_rmse: Float[Array, " starts"]
     creep: Creep | None = None
-    parameter_names: tuple = eqx.field(static=True, default=())
-    parameter_values: Float[Array, " params"] | None = None
-    covariance: Float[Array, "params params"] | None = None
-    std_errors: Float[Array, " params"] | None = None
-    undetermined: Bool[Array, " params"] | None = None
-    covariance_method: str | None = eqx.field(static=True, default=None)
-    residual_std: Scalar | None = None
     held: Bool[Array, " params"] | None = None
 
     @property
     def held_names(self) -> tuple:
         """The creep time constants that sit on their bounds (see `covariance.on_bounds`)."""
         return _cov.flagged_names(self.parameter_names, self.held)
-
-    @property
-    def undetermined_names(self) -> tuple:
-        """The names of the parameters the record does not determine."""
-        return _cov.flagged_names(self.parameter_names, self.undetermined)
 
     @property
     def determined(self) -> bool:

@@ -45,11 +45,12 @@ from .fit import (
 )
 from .fit_data import prepare
 from .solvers import check_solver, least_squares_solver, result_name
+from .uncertainty import Uncertainty
 
 START_AMPLITUDE = 1.5  # the start's Σ a_k in normalised output units (the data span [-1, 1])
 
 
-class GPIFit(eqx.Module):
+class GPIFit(Uncertainty):
     """The result of [`fit_gpi`][piest_jax.fit_gpi].
 
     **Fields:**
@@ -72,18 +73,6 @@ class GPIFit(eqx.Module):
     result: optx.RESULTS
     n_steps: jax.Array
     start_rmse: jax.Array
-    parameter_names: tuple = eqx.field(static=True, default=())
-    parameter_values: jax.Array | None = None
-    covariance: jax.Array | None = None
-    std_errors: jax.Array | None = None
-    undetermined: jax.Array | None = None
-    covariance_method: str | None = eqx.field(static=True, default=None)
-    residual_std: Scalar | None = None
-
-    @property
-    def undetermined_names(self) -> tuple:
-        """The names of the parameters the record does not determine."""
-        return _cov.flagged_names(self.parameter_names, self.undetermined)
 
     @property
     def determined(self) -> bool:

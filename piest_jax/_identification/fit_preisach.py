@@ -46,11 +46,12 @@ from .._models.preisach import Preisach, relay_columns
 from .._operators.play import Method, play
 from . import covariance as _cov
 from . import preisach_covariance
+from .uncertainty import Uncertainty
 
 DEFAULT_SMOOTHNESS = tuple(float(v) for v in np.logspace(-7, 1, 9))
 
 
-class PreisachFit(eqx.Module):
+class PreisachFit(Uncertainty):
     """The result of [`fit_preisach`][piest_jax.fit_preisach].
 
     **Fields:**
@@ -75,19 +76,7 @@ class PreisachFit(eqx.Module):
     candidates: tuple
     held_out_rmse: tuple
     n_blocks: int = eqx.field(static=True)
-    parameter_names: tuple = eqx.field(static=True, default=())
-    parameter_values: jax.Array | None = None
-    covariance: jax.Array | None = None
-    std_errors: jax.Array | None = None
-    undetermined: jax.Array | None = None
-    covariance_method: str | None = eqx.field(static=True, default=None)
-    residual_std: float | None = None
     effective_parameters: float | None = None
-
-    @property
-    def undetermined_names(self) -> tuple:
-        """The names of the parameters the record does not determine."""
-        return _cov.flagged_names(self.parameter_names, self.undetermined)
 
 
 def _second_differences(n: int) -> np.ndarray:
