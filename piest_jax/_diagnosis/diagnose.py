@@ -101,8 +101,8 @@ def _noise(p, cfg, floor, step):
     follows the input and is no faster than its cycles. Its noise floor is measured by the local
     cubic on every `step`-th sample, spanning up to half the input's cycle (`half_cycle`):
     coloured noise, mostly slower than the cubic's 7 samples, is seen there and not at the full
-    rate. `floor` (the whole record's 7-sample floor) is a lower bound, so white noise is judged
-    as before. The effective sample size counts the residual's correlation over the same span.
+    rate. `floor` (the whole record's 7-sample floor) is a lower bound, so white noise reads
+    about as before. The effective sample size counts the residual's correlation over the same span.
     """
     f = _model.fit(p, cfg)
     r = p.y - _model.predict(p, cfg, f.w, f.w_v, f.norm)
