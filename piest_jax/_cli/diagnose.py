@@ -117,7 +117,8 @@ def _markdown(d, data):
         "",
         f"Effects named, in order: {eff}.",
         "",
-        f"Noise floor (robust std of the residual of a local cubic fit): {d.noise_std_estimate:.4g}.",
+        f"Noise floor (robust std of the noise in the final residual, up to the input's short time scale): "
+        f"{d.noise_std_estimate:.4g}.",
         "",
         "| | plain PI | with the named effects |",
         "|---|---|---|",

@@ -30,6 +30,7 @@ from . import refine as _refine
 from .diagnosis import Diagnosis, DiagnosisValidation
 from .effect import AbstractEffect
 from .effects import EFFECT, EFFECTS, chain, check_names
+from .scaling import SMOOTHER, effective_samples, half_cycle
 from .scaling import Scaling as Scaling
 from .scaling import check_record as check_record
 from .scaling import noise_std as noise_std
@@ -91,6 +92,22 @@ def _fit_many(p, cfg, effect, values):
 def _cv(p, cfg):
     f = _model.fit(p, cfg)
     return _model.cv_mse(p, f.A, cfg, f.target)[0]
+
+
+def _noise(p, cfg, floor, step):
+    """The noise variance and effective sample size that judge a round, from the current residual.
+
+    The residual of the current model holds the noise and what the model still misses, which
+    follows the input and is no faster than its cycles. Its noise floor is measured by the local
+    cubic on every `step`-th sample, spanning up to half the input's cycle (`half_cycle`):
+    coloured noise, mostly slower than the cubic's 7 samples, is seen there and not at the full
+    rate. `floor` (the whole record's 7-sample floor) is a lower bound, so white noise reads
+    about as before. The effective sample size counts the residual's correlation over the same span.
+    """
+    f = _model.fit(p, cfg)
+    r = p.y - _model.predict(p, cfg, f.w, f.w_v, f.norm)
+    sigma = max(floor, noise_std(r, step))
+    return max(sigma**2, 1e-12), effective_samples(r, SMOOTHER * step)
 
 
 def _significant(gain, n_params, cur_mse, sigma2, n):
@@ -166,7 +183,7 @@ def _pair_restart(p, first, cur, sigma2, n):
     return best if gain_ok else None
 
 
-def _prune(p, cfg, named, sigma2):
+def _prune(p, cfg, named, sigma2, n):
     """Drop a named effect that a later one made redundant (backward elimination).
 
     A lag can stand in for a delay, slow creep for a drift: when the model without the earlier
@@ -178,7 +195,7 @@ def _prune(p, cfg, named, sigma2):
         for e in named:
             rest = {k: v for k, v in cfg.items() if k != e}
             loss = _cv(p, rest) - cur
-            if not _significant(loss, EFFECT[e].n_params, cur, sigma2, len(p.y))[1]:
+            if not _significant(loss, EFFECT[e].n_params, cur, sigma2, n)[1]:
                 cfg, named = rest, [x for x in named if x != e]
                 pruned.append(e)
                 break
@@ -214,26 +231,32 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     sc = scaling_of(rec)
     step = int(math.ceil(rec.n_samples / SEARCH_SAMPLES))
     p = prepared(rec, sc, step=step, folds=True)
-    n = len(p.y)
-    sigma = noise_std(rec.y) / sc.y_half
-    sigma2 = max(sigma**2, 1e-12)
+    floor = noise_std(rec.y) / sc.y_half
+    step_noise = max(1, min(half_cycle(p.u) // SMOOTHER, len(p.y) // (8 * SMOOTHER)))
     cfg, named, rounds = {}, [], []
     first, restarted = {}, False
     base_mse = cur = _cv(p, cfg)
     while len(named) < max_effects:
-        scores = {}
         todo = [c for c in candidates if c not in named]
-        for c in progress(todo, desc=f"diagnose, round {len(rounds) + 1}", quiet=quiet):
-            mse, q = _fit_many(p, cfg, c, EFFECT[c].grid(p))
+        fits = {c: _fit_many(p, cfg, c, EFFECT[c].grid(p))
+                for c in progress(todo, desc=f"diagnose, round {len(rounds) + 1}", quiet=quiet)}
+        if not fits:
+            break
+        # What the current model misses leaks into its residual's noise floor; the best
+        # candidate's residual holds less of it when the candidate is right, and as much
+        # noise either way, so the smaller of the two floors judges the round.
+        top = min(fits, key=lambda c: fits[c][0])
+        sigma2, n = min(_noise(p, cfg, floor, step_noise), _noise(p, {**cfg, top: fits[top][1]}, floor, step_noise))
+        scores = {}
+        for c, (mse, q) in fits.items():
             score, ok = _significant(cur - mse, EFFECT[c].n_params, cur, sigma2, n)
             scores[c] = dict(heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score),
                              significant=ok, value=q, mse=mse)
-        if not scores:
-            break
         best = _prefer_input_driven(scores, max(scores, key=lambda k: scores[k]["score"]), cur, sigma2, n)
         ok = scores[best]["significant"]
         rounds.append(dict(
             current_heldout_rmse=float(np.sqrt(cur)) * sc.y_half,
+            noise_std=float(np.sqrt(sigma2)) * sc.y_half, effective_samples=n,
             candidates={k: {kk: v[kk] for kk in ("heldout_rmse", "score", "significant")}
                         for k, v in scores.items()},
             best=best, named=ok, parameters=EFFECT[best].describe(scores[best]["value"]),
@@ -255,7 +278,8 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
         if len(named) > 1:
             cfg, named, cur = _revisit(p, cfg, named, candidates, cur)
             rounds[-1]["effects_after_revisit"] = list(named)
-    cfg, named, pruned = _prune(p, cfg, named, sigma2)
+    sigma2, n = _noise(p, cfg, floor, step_noise)
+    cfg, named, pruned = _prune(p, cfg, named, sigma2, n)
     cfg = {k: cfg[k] for k in named}
     final_mse = _cv(p, cfg)
     full = prepared(rec, sc) if refit else p
@@ -270,7 +294,7 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
         models[label] = (dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None
                          else _refined(full, thin, c, f, solver))
     return dict(
-        effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=sigma * sc.y_half,
+        effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=float(np.sqrt(sigma2)) * sc.y_half,
         step=step, heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
         heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half, **models,
     )

@@ -29,7 +29,8 @@ class DiagnosisValidation:
       `final_fit_percent_ic`: the fit percentages 100 (1 - ||e|| / ||y - mean y||) of the four.
     - `initial_conditions`: `{"baseline": ..., "final": ...}`, what was estimated for each model
       (`offset`, `history_turning_points`, `<effect>_states`).
-    - `noise_std_estimate`: the validation record's noise floor.
+    - `noise_std_estimate`: the validation record's 7-sample noise floor
+      ([`noise_std`][piest_jax.noise_std] of its output).
     - `baseline_rmse_offset_removed`, `final_rmse_offset_removed`: the raw RMSEs with each
       model's mean residual removed (a sensor zero that moved between runs).
     - `effects_used`: the transferable effects, in the order named.
@@ -79,7 +80,11 @@ class Diagnosis(Mapping):
     - `effects`: the effects named, in the order they were named.
     - `baseline_rmse`, `final_rmse`: the RMSE on the whole record of the plain PI model and of
       the model with the named effects (after the joint refinement, when it was kept).
-    - `noise_std_estimate`: the noise floor (robust std of the residual of a local cubic fit).
+    - `noise_std_estimate`: the noise floor the search judged by, from the final model's
+      residual: the larger of the output's 7-sample floor ([`noise_std`][piest_jax.noise_std])
+      and the residual's floor on every m-th sample, the local cubic spanning up to the
+      input's short time scale, so that noise correlated over several samples (coloured
+      sensor noise) counts with its whole variance.
     - `parameters`: `{effect: {name: value}}` for the named effects, after refinement.
     - `refinement`: `{"model_base": ..., "model_final": ...}`: the solver's result, steps, RMSE
       before and after, and which fit was kept (empty without a solver).

@@ -18,22 +18,77 @@ N_BLOCKS = 64
 N_FOLDS = 4
 
 
-def noise_std(y) -> float:
+SMOOTHER = 7
+
+
+def noise_std(y, step: int = 1) -> float:
     """The noise floor: a robust std of the residual of a local cubic fit over 7 samples.
 
     The local cubic (Savitzky-Golay) follows the signal, loops and reversals included, so the
     residual is noise: for white noise of std sigma its variance is sigma^2 (1 - h0), with h0 the
     smoother's central weight; the median absolute deviation ignores the few samples at kinks.
+    The residual only holds the noise faster than the smoother's span: noise correlated over
+    several samples (a filtered sensor, coloured noise) is mostly slower and is missed at
+    `step` 1. With `step` m the smoother runs on every m-th sample (each of the m phases, the
+    residuals pooled), so it spans 7 m samples and sees the noise up to that time scale.
 
-    **Arguments:** `y`, a sampled signal (T,).
+    **Arguments:** `y`, a sampled signal (T,); `step`, the spacing of the samples the smoother
+    runs on.
 
     **Returns:** the estimated noise std.
     """
     y = np.asarray(y, float)
-    r = y - _signal.savgol_filter(y, 7, 3, mode="interp")
-    h0 = _signal.savgol_coeffs(7, 3)[3]
+    step = int(step)
+    if step < 1 or len(y) < SMOOTHER * step:
+        raise ValueError(f"`step` must be in [1, {len(y) // SMOOTHER}] for {len(y)} samples, got {step}")
+    r = np.concatenate([k - _signal.savgol_filter(k, SMOOTHER, 3, mode="interp")
+                        for k in (y[i::step] for i in range(step))])
+    h0 = _signal.savgol_coeffs(SMOOTHER, 3)[SMOOTHER // 2]
     mad = np.median(np.abs(r - np.median(r)))
     return float(1.4826 * mad / np.sqrt(1 - h0))
+
+
+def effective_samples(r, max_lag: int) -> float:
+    """How many independent samples a residual is worth: n / (1 + 2 sum_k rho_k).
+
+    The autocorrelations rho_k are summed over the initial positive run of lags (up to
+    `max_lag`), where they are still above their own sampling noise: white noise gives n,
+    AR(1) noise of lag-one correlation phi about n (1 - phi) / (1 + phi).
+
+    **Arguments:** `r`, a residual (T,); `max_lag`, the longest lag summed.
+
+    **Returns:** the effective sample size, at most T.
+    """
+    r = np.asarray(r, float) - np.mean(r)
+    n = len(r)
+    c0 = float(r @ r)
+    if c0 <= 0:
+        return float(n)
+    tau = 1.0
+    for k in range(1, min(int(max_lag), n - 1) + 1):
+        rho = float(r[k:] @ r[:-k]) / c0
+        if rho <= 0:
+            break
+        tau += 2 * rho
+    return n / tau
+
+
+def half_cycle(u, frac: float = 0.05) -> int:
+    """The input's half cycle in samples: the median spacing of its reversals.
+
+    The effects the diagnosis names follow the input, so what a model misses is no faster than
+    the input's cycles, and a local cubic over half a cycle still follows it: noise faster than
+    this span is what the noise floor can tell from a missed effect.
+
+    **Arguments:** `u`, the input (T,); `frac`, the smallest reversal counted, as a share of
+    the input's range.
+
+    **Returns:** the half cycle in samples (the record's length when the input reverses less
+    than twice).
+    """
+    u = np.asarray(u, float)
+    turns = np.diff(_turns((u - u.min()) / max(np.ptp(u), 1e-300), frac))
+    return int(np.median(turns)) if len(turns) else len(u)
 
 
 class Prepared:
@@ -114,16 +169,22 @@ def check_record(rec: Record) -> None:
 
 def _reversals(un, frac=0.05):
     """Direction changes of a signal in [0, 1] larger than `frac` (a hysteresis counter)."""
-    count, ext, direction = 0, un[0], 0
-    for v in un[:: max(1, len(un) // 20000)]:
+    return len(_turns(un[:: max(1, len(un) // 20000)], frac))
+
+
+def _turns(un, frac):
+    """The samples where a signal in [0, 1] turns back by more than `frac` (its extremes)."""
+    out, ext, at, direction = [], un[0], 0, 0
+    for i, v in enumerate(un):
         if direction == 0:
             if abs(v - ext) > frac:
-                direction, ext = (1 if v > ext else -1), v
+                direction, ext, at = (1 if v > ext else -1), v, i
         elif direction * (v - ext) > 0:
-            ext = v
+            ext, at = v, i
         elif direction * (ext - v) > frac:
-            count, direction, ext = count + 1, -direction, v
-    return count
+            out.append(at)
+            direction, ext, at = -direction, v, i
+    return out
 
 
 def scaling_of(rec: Record) -> Scaling:
