@@ -66,7 +66,7 @@ def run(args, rec, val, out, options: dict) -> int:
     except ValueError as e:
         raise CLIError(f"{args.data}: {' '.join(str(e).split())}") from None
     report = {**result.to_json(), **record_fields(rec, args)}
-    table = parameter_table(result.fit) if getattr(result.fit, "std_errors", None) is not None else ""
+    table = "" if result.fit.std_errors is None else parameter_table(result.fit)
     written = [_io.write_json(out / "fit.json", report),
                _io.write_text(out / "fit.md", _markdown(args, report, table)),
                _io.save_figure(fit_figure(rec, np.asarray(result.fit.model(rec.u)), title="fit",
@@ -91,7 +91,7 @@ def run(args, rec, val, out, options: dict) -> int:
 
 def _band(fit, u):
     """The 95 % measurement band of the fit on `u`, or None without a covariance."""
-    if getattr(fit, "covariance", None) is None:
+    if fit.covariance is None:
         return None
     return prediction_band(fit, u).interval()
 

@@ -22,7 +22,7 @@ from jax import lax
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
 from . import covariance as _cov
-from .band_saturating import band_parts, check_input
+from .band_saturating import band_parts
 from .fit import PIFit, run
 from .fit_data import Scales
 from .fit_gpi import GPIFit
@@ -111,15 +111,7 @@ def prediction_band(fit: PIFit | GPIFit | PreisachFit, u: SignalLike, *, initial
     given lag states and offset). Raises `ValueError` for a fit without a covariance, a
     non-finite or empty input, states of the wrong size or a non-positive `chunk`.
     """
-    if isinstance(fit, GPIFit | PreisachFit):
-        if lag_states is not None or offset is not None:
-            raise ValueError(f"a {type(fit).__name__} has no creep or separate offset: give "
-                             "neither `lag_states` nor `offset`")
-        if not _checks.is_whole(chunk) or chunk < 1:
-            raise ValueError(f"`chunk` must be a positive whole number, got {chunk!r}")
-        pred, var, sigma = band_parts(fit, check_input(u), initial_states, chunk)
-        return PredictionBand(pred, jnp.sqrt(jnp.maximum(var, 0.0)), sigma)
-    if not isinstance(fit, PIFit):
+    if not isinstance(fit, PIFit | GPIFit | PreisachFit):
         raise ValueError("`fit` must be a PIFit, GPIFit or PreisachFit (from fit_pi, fit_gpi, "
                          f"fit_preisach), got {type(fit).__name__}")
     if fit.covariance is None or fit.residual_std is None:
@@ -128,6 +120,12 @@ def prediction_band(fit: PIFit | GPIFit | PreisachFit, u: SignalLike, *, initial
     if not _checks.is_whole(chunk) or chunk < 1:
         raise ValueError(f"`chunk` must be a positive whole number, got {chunk!r}")
     u = _checks.finite(_checks.signal(u, "u"), "u")
+    if isinstance(fit, GPIFit | PreisachFit):
+        if lag_states is not None or offset is not None:
+            raise ValueError(f"a {type(fit).__name__} has no creep or separate offset: give "
+                             "neither `lag_states` nor `offset`")
+        pred, var, sigma = band_parts(fit, u, initial_states, chunk)
+        return PredictionBand(pred, jnp.sqrt(jnp.maximum(var, 0.0)), sigma)
     dtype = jnp.result_type(u, fit.weights)
     u = u.astype(dtype)
     n, k = fit.n_plays, fit.n_lags

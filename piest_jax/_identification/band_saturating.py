@@ -13,25 +13,21 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .. import _checks
-from .._models.preisach import relay_columns
-from .._operators.play import Method, play
+from .._models.preisach import relay_chunk
+from .._operators.play import Method
 from . import covariance as _cov
 from . import gpi_covariance
 from .fit_gpi import GPIFit
-from .fit_preisach import PreisachFit, triangle
+from .fit_preisach import PreisachFit, triangle_columns
 
 
 def band_parts(fit: GPIFit | PreisachFit, u, initial_states=None, chunk: int = _cov.CHUNK):
     """The prediction (T,), its variance diag(J Σ Jᵀ) (T,) and σ for a saturating fit on `u`.
 
-    **Arguments:** `fit`; `u` (T,), finite; `initial_states`, the plays' states before the first
+    **Arguments:** `fit`, with a covariance; `u` (T,), finite; `initial_states`, the plays' states before the first
     sample (scalar or (n,)), taken as known; default the model's; `chunk`, samples per chunk
     (the Preisach model's relays).
     """
-    if fit.covariance is None or fit.residual_std is None:
-        raise ValueError("the fit has no covariance: fit it with `covariance` 'newey-west' or "
-                         "'gauss-newton', not None")
     model = fit.model if initial_states is None else fit.model.with_initial_states(initial_states)
     dtype = jnp.result_type(u, model.offset)
     u = jnp.asarray(u, dtype)
@@ -48,8 +44,7 @@ def band_parts(fit: GPIFit | PreisachFit, u, initial_states=None, chunk: int = _
         pred, J = gpi_covariance.jacobian(theta.astype(dtype), u, x0, n, k, states)
         var = jnp.sum((J @ jnp.asarray(cov, dtype)) * J, axis=1)
     else:
-        K, M = model.shape
-        keep = np.append(np.flatnonzero(triangle(K, M).ravel()), K * M)
+        keep = triangle_columns(*model.shape)
         x0 = model._start(u).astype(dtype)
         pred = model(u)
         var = _preisach_variance(u, model.half_widths.astype(dtype), model.centres.astype(dtype),
@@ -64,15 +59,9 @@ def _preisach_variance(u, half_widths, centres, blur, x0, keep, cov, chunk: int,
     T = u.shape[0]
 
     def body(x, uu):
-        H = play(uu, half_widths, x, method=method)
-        S = jnp.concatenate([relay_columns(H, centres, blur), jnp.ones((chunk, 1), u.dtype)], 1)
+        S, x = relay_chunk(uu, x, half_widths, centres, blur, method)
         S = S[:, keep]
-        return H[-1], jnp.sum((S @ cov) * S, axis=1)
+        return x, jnp.sum((S @ cov) * S, axis=1)
 
     _, var = lax.scan(body, x0, _cov.chunked(u, u[-1], chunk))
     return var.reshape(-1)[:T]
-
-
-def check_input(u):
-    """The input as a finite signal (T,)."""
-    return _checks.finite(_checks.signal(u, "u"), "u")

@@ -209,14 +209,28 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
         pred, after, J, dafter = rows(states, dstates, uu)
         J = J * mm[None, :]
         e = (yy - pred) * mm
-        cum = jnp.concatenate([tail, tail[-1] + jnp.cumsum((J * e[None, :]).T, axis=0)])
-        W = (cum[window:] - cum[:chunk]) * ((ii >= window - 1) & (ii < T))[:, None]
-        return (after, dafter, cum[chunk:], JtJ + J @ J.T, blocks + W.T @ W, ete + e @ e), None
+        W, tail = block_sums(tail, (J * e[None, :]).T, ii, T)
+        return (after, dafter, tail, JtJ + J @ J.T, blocks + W.T @ W, ete + e @ e), None
 
     zero = jnp.zeros((p, p), theta.dtype)
     init = (s0, ds0, jnp.zeros((window, p), theta.dtype), zero, zero, jnp.zeros((), theta.dtype))
     (_, _, _, JtJ, blocks, ete), _ = lax.scan(body, init, data)
     return JtJ, blocks, ete
+
+
+def block_sums(tail, g, ii, T: int):
+    """The overlapping block sums W_t (m, p) of the scores `g` (m, p) of one chunk.
+
+    `tail` (b, p) holds the running sum of the scores at the chunk's last b samples before it (b
+    the block length, zeros before the record); `ii` (m,) are the chunk's sample indices. W_t, the
+    sum of the b scores ending at t, is 0 for t < b - 1 and for padding (t >= T).
+
+    **Returns:** `(W, tail)`, the tail to carry into the next chunk.
+    """
+    b, m = tail.shape[0], g.shape[0]
+    cum = jnp.concatenate([tail, tail[-1] + jnp.cumsum(g, axis=0)])
+    W = (cum[b:] - cum[:m]) * ((ii >= b - 1) & (ii < T))[:, None]
+    return W, cum[m:]
 
 
 def bandwidth(e) -> int:
@@ -272,33 +286,53 @@ def estimate_moments(JtJ, blocks, ete, N: int, *, method: str, window, eps=None)
     """
     if method not in METHODS:
         raise ValueError(f"unknown covariance method {method!r}; choose one of {METHODS}")
-    G = np.asarray(JtJ, np.float64)
-    p = G.shape[0]
-    norms = np.sqrt(np.maximum(np.diag(G), 0.0))
-    d = np.where(norms > 0, norms, 1.0)
-    lam, V = np.linalg.eigh(G / np.outer(d, d))
-    order = np.argsort(lam)[::-1]
-    S = np.sqrt(np.maximum(lam[order], 0.0))
-    Vt = V[:, order].T
+    S, Vt, norms = _gram_svd(JtJ)
+    p = norms.shape[0]
     b = int(window) if method == "newey-west" else None
     return _sandwich(S, Vt, norms, N, p, float(ete), method, b,
                      None if b is None else np.asarray(blocks, np.float64), eps, rank_from_gram=True)
 
 
-def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, eps, *, rank_from_gram):
-    """The covariance from the scaled J's singular values `S` and right vectors `Vt`."""
-    eps = np.finfo(np.float64).eps if eps is None else float(eps)
+def _gram_svd(G):
+    """The singular values (decreasing) and right vectors of the column-scaled J whose Gram
+    matrix is `G` (p, p), and J's column norms."""
+    G = np.asarray(G, np.float64)
+    norms = np.sqrt(np.maximum(np.diag(G), 0.0))
     d = np.where(norms > 0, norms, 1.0)
+    lam, V = np.linalg.eigh(G / np.outer(d, d))
+    order = np.argsort(lam)[::-1]
+    return np.sqrt(np.maximum(lam[order], 0.0)), V[:, order].T, norms
+
+
+def _identifiable(S, Vt, norms, N, p, eps, *, rank_from_gram):
+    """J's numerical rank and the parameters it leaves free (rule 1 of the module notes)."""
+    eps = np.finfo(np.float64).eps if eps is None else float(eps)
     rel = max(N, p) * eps
     if rank_from_gram:
         rel = max(rel, np.sqrt(eps))
     tol = (S[0] if S.size and S[0] > 0 else 1.0) * rel
     rank = int(np.sum(S > tol))
-    V = Vt[:rank].T
-    bread = (V / S[:rank] ** 2) @ V.T / np.outer(d, d)  # (JᵀJ)⁺ on the identifiable subspace
     null = Vt[rank:].T
     deficient = np.linalg.norm(null, axis=1) > NULL_SHARE if rank < p else np.zeros(p, bool)
-    deficient |= norms == 0
+    return rank, deficient | (norms == 0)
+
+
+def gram_deficient(G, N: int, eps=None):
+    """The parameters a Gram matrix `G` = JᵀJ (p, p) of `N` rows leaves free, judged as
+    [`estimate_moments`][] judges them.
+
+    **Returns:** (p,) booleans.
+    """
+    S, Vt, norms = _gram_svd(G)
+    return _identifiable(S, Vt, norms, N, norms.shape[0], eps, rank_from_gram=True)[1]
+
+
+def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, eps, *, rank_from_gram):
+    """The covariance from the scaled J's singular values `S` and right vectors `Vt`."""
+    d = np.where(norms > 0, norms, 1.0)
+    rank, deficient = _identifiable(S, Vt, norms, N, p, eps, rank_from_gram=rank_from_gram)
+    V = Vt[:rank].T
+    bread = (V / S[:rank] ** 2) @ V.T / np.outer(d, d)  # (JᵀJ)⁺ on the identifiable subspace
     dof = N - p
     info = {"method": method, "dof": dof, "rank": rank, "bandwidth": None}
     if dof < 1:

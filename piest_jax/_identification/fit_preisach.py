@@ -42,8 +42,8 @@ from jax import lax
 
 from .. import _checks
 from .._custom_types import SignalLike
-from .._models.preisach import Preisach, relay_columns
-from .._operators.play import Method, play
+from .._models.preisach import Preisach, relay_chunk
+from .._operators.play import Method
 from . import covariance as _cov
 from . import preisach_covariance
 from .uncertainty import Uncertainty
@@ -100,6 +100,17 @@ def triangle(n_widths: int, n_centres: int) -> np.ndarray:
     return np.abs(c)[None, :] - 1.0 / n_centres < 1.0 - r[:, None] - 1e-12
 
 
+def triangle_columns(n_widths: int, n_centres: int) -> np.ndarray:
+    """The columns of the relays-plus-constant matrix a fit uses: the triangle's cells (raveled,
+    row-major) and then the constant, K·M.
+
+    **Arguments:** `n_widths` K, `n_centres` M.
+
+    **Returns:** an integer array of column indices.
+    """
+    return np.append(np.flatnonzero(triangle(n_widths, n_centres).ravel()), n_widths * n_centres)
+
+
 def penalty_matrix(n_widths: int, n_centres: int, active=None) -> np.ndarray:
     """DᵀD for the second differences of a (K, M) density along both axes, raveled row-major.
 
@@ -147,14 +158,13 @@ def normal_equations(u, y, weights, half_widths, centres, blur, x0, *, chunk: in
     def step(carry, inputs):
         x, G, h, yy, n = carry
         uc, yc, wc, b = inputs
-        H = play(uc, half_widths, x, method=method)
-        S = jnp.concatenate([relay_columns(H, centres, blur), jnp.ones((chunk, 1), dtype)], 1)
+        S, x = relay_chunk(uc, x, half_widths, centres, blur, method)
         Sw = S * wc[:, None]
         G = G.at[b].add(Sw.T @ S)
         h = h.at[b].add(Sw.T @ yc)
         yy = yy.at[b].add(jnp.sum(wc * yc * yc))
         n = n.at[b].add(jnp.sum(wc))
-        return (H[-1], G, h, yy, n), None
+        return (x, G, h, yy, n), None
 
     init = (x0, jnp.zeros((n_blocks, P, P), dtype), jnp.zeros((n_blocks, P), dtype),
             jnp.zeros((n_blocks,), dtype), jnp.zeros((n_blocks,), dtype))
@@ -296,7 +306,7 @@ def fit_preisach(
     # Only the cells in the Preisach triangle are fitted (the others stay 0); the last column of
     # the normal equations is the offset.
     active = triangle(K, M)
-    keep = np.append(active.ravel(), True)
+    keep = triangle_columns(K, M)
     G, h = G[:, keep][:, :, keep], h[:, keep]
     Gt, ht = G.sum(0), h.sum(0)
     n_act = int(active.sum())
@@ -352,7 +362,7 @@ def _covariance(method, model, theta, G, pen, active, monotone, u, y, w, scales,
     blocks = window = None
     if method == "newey-west":
         window = _cov.bandwidth(e[used])
-        keep = np.append(np.flatnonzero(active.ravel()), active.size)
+        keep = triangle_columns(*active.shape)
         dtype = jnp.result_type(float)
         blocks = np.asarray(preisach_covariance.score_blocks(
             jnp.asarray((u - u_mid) / u_half, dtype), jnp.asarray(w * e, dtype),

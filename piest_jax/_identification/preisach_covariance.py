@@ -30,8 +30,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .._models.preisach import relay_columns
-from .._operators.play import Method, play
+from .._models.preisach import relay_chunk
+from .._operators.play import Method
 from . import covariance as _cov
 
 
@@ -53,12 +53,9 @@ def score_blocks(u, e, half_widths, centres, blur, x0, keep, window: int, chunk:
     def body(carry, inputs):
         x, tail, blocks = carry
         uu, ee, ii = inputs
-        H = play(uu, half_widths, x, method=method)
-        S = jnp.concatenate([relay_columns(H, centres, blur), jnp.ones((chunk, 1), u.dtype)], 1)
-        g = S[:, keep] * ee[:, None]
-        cum = jnp.concatenate([tail, tail[-1] + jnp.cumsum(g, axis=0)])
-        W = (cum[window:] - cum[:chunk]) * ((ii >= window - 1) & (ii < T))[:, None]
-        return (H[-1], cum[chunk:], blocks + W.T @ W), None
+        S, x = relay_chunk(uu, x, half_widths, centres, blur, method)
+        W, tail = _cov.block_sums(tail, S[:, keep] * ee[:, None], ii, T)
+        return (x, tail, blocks + W.T @ W), None
 
     data = (_cov.chunked(u, u[-1], chunk), _cov.chunked(e, 0.0, chunk),
             _cov.chunked(jnp.arange(T), T, chunk))
@@ -93,15 +90,8 @@ def fields(method: str, G, A, free, n: int, ete: float, y_half: float, names, bl
             meat = blocks[np.ix_(idx, idx)] / window * n / (n - window + 1) * n / dof
         cov_f = Ainv @ meat @ Ainv
         cov_f = 0.5 * (cov_f + cov_f.T)
-    # The free entries the data alone do not determine: G's numerical rank on them, judged as
-    # the PI fit's covariance judges a Gram matrix.
-    norms = np.sqrt(np.maximum(np.diag(Gf), 0.0))
-    d = np.where(norms > 0, norms, 1.0)
-    lam, V = np.linalg.eigh(Gf / np.outer(d, d))
-    S = np.sqrt(np.maximum(lam, 0.0))
-    rel = max(max(n, idx.size) * np.finfo(float).eps, math.sqrt(np.finfo(float).eps))
-    null = V[:, S <= max(S.max(initial=0.0), 1e-300) * rel]
-    deficient = (np.linalg.norm(null, axis=1) > _cov.NULL_SHARE) | (norms == 0)
+    # The free entries the data alone do not determine: G's numerical rank on them.
+    deficient = _cov.gram_deficient(Gf, n)
     cov = np.zeros((p, p))
     cov[np.ix_(idx, idx)] = cov_f * y_half**2
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))

@@ -67,6 +67,20 @@ def relay_columns(H: Array, centres: Array, blur: Array) -> Array:
     return s.reshape(H.shape[0], -1)
 
 
+def relay_chunk(uu, x, half_widths, centres, blur, method: Method = "scan"):
+    """One chunk of the regressors: the blurred relays plus a constant, as the plays run on.
+
+    **Arguments:** `uu` (m,), the chunk's input; `x` (K,), the plays' states before it; the grid
+    (`half_widths` (K,), `centres` (M,), `blur` (M,)); `method`, the play bank's method.
+
+    **Returns:** `(S, x_after)`: S (m, K·M + 1), the constant last, and the plays' states after
+    the chunk.
+    """
+    H = play(uu, half_widths, x, method=method)
+    ones = jnp.ones((uu.shape[0], 1), uu.dtype)
+    return jnp.concatenate([relay_columns(H, centres, blur), ones], 1), H[-1]
+
+
 def _vector(x, name: str) -> Array:
     x = jnp.atleast_1d(_checks.as_float_array(x, name))
     if x.ndim != 1 or x.shape[0] < 1:
