@@ -24,7 +24,8 @@ also has `cpu_seconds` (the process's CPU time over all its threads) and the loa
 and after, since the machine may be shared: with other jobs running, wall time exceeds CPU time.
 
 Run: python experiments/bench_montecarlo.py [--quick] [--dtype float32|float64]
-     [--play-method scan|kernel|auto] [--host-devices N] [--out FILE]
+     [--play-method scan|associative|kernel|auto] [--chunk N] [--no-stages] [--host-devices N]
+     [--out FILE]
 
 `--host-devices N` splits the CPU into N JAX devices
 (XLA_FLAGS=--xla_force_host_platform_device_count=N), so the engine shards the draws over them.
@@ -152,7 +153,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="small sizes: a smoke test")
     p.add_argument("--dtype", default="float64", choices=("float32", "float64"))
-    p.add_argument("--play-method", default="auto", choices=("scan", "kernel", "auto"))
+    p.add_argument("--play-method", default="auto", choices=("scan", "associative", "kernel", "auto"))
+    p.add_argument("--no-stages", action="store_true",
+                   help="skip the per-stage rows (one draw per step: slow on accelerators)")
     p.add_argument("--chunk", type=int, default=1000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--host-devices", type=int, help="CPU devices to shard over (read at start)")
@@ -194,7 +197,8 @@ def main(argv=None) -> int:
           f"({row['draws_per_s']:.0f} draws/s, {row['cpu_seconds']:.1f} s CPU; "
           f"first call {first['seconds']:.1f} s; load {row['load_after']})")
 
-    report["stages"] = _stages(key, s, chunk)
+    if not args.no_stages:
+        report["stages"] = _stages(key, s, chunk)
 
     report["scaling_draws"] = []
     for d in sorted({max(chunk, draws // 10), max(chunk, draws // 3)}):

@@ -246,7 +246,18 @@ def test_chunking_invariance(pemap, settings):
         pj.pe_map(jax.random.key(SEED), 50, settings, start=5)
 
 
-def test_sharded_equals_single_device(pemap, tmp_path):
+def _cpu_map(pemap, settings):
+    """The fixture's map as one CPU device computes it (the subprocesses below run on CPUs).
+
+    On an accelerator the in-process map runs there, whose eigensolver rounds otherwise.
+    """
+    if jax.default_backend() == "cpu":
+        return pemap
+    return pj.pe_map(jax.random.key(SEED), N_DRAWS, settings, chunk=CHUNK, devices=jax.devices("cpu")[:1],
+                     quiet=True)
+
+
+def test_sharded_equals_single_device(pemap, settings, tmp_path):
     script = textwrap.dedent(
         f"""
         import jax, numpy as np
@@ -269,7 +280,7 @@ def test_sharded_equals_single_device(pemap, tmp_path):
     proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     sharded = np.load(tmp_path / "sharded.npz")
-    _assert_same_map(sharded, pemap)
+    _assert_same_map(sharded, _cpu_map(pemap, settings))
 
 
 def test_many_windows_on_two_devices_finish(tmp_path):
@@ -296,7 +307,7 @@ def test_many_windows_on_two_devices_finish(tmp_path):
         pytest.fail("the two-device map did not finish in 300 s (eigensolver deadlock?)")
     assert proc.returncode == 0, proc.stderr[-2000:]
     s = pj.make_settings(n_samples=600, n_plays=10, window=30, stride=1, dt=0.01, dtype="float64")
-    one = pj.pe_map(jax.random.key(3), 28, s, chunk=28, quiet=True)
+    one = pj.pe_map(jax.random.key(3), 28, s, chunk=28, devices=jax.devices("cpu")[:1], quiet=True)
     two = np.load(tmp_path / "two.npz")
     # (which plays count as moving is a tolerance decision on sums that another compilation may
     # round differently; the map's own values must agree)

@@ -165,3 +165,30 @@ def test_traced_value_errors_under_jit():
         jax.block_until_ready(_play(jnp.zeros(T), -jnp.ones(N), jnp.zeros(N)))
     with pytest.raises(RuntimeError, match="`u` contains NaN or inf"):
         jax.block_until_ready(_play(jnp.zeros(T).at[3].set(jnp.nan), jnp.ones(N), jnp.zeros(N)))
+
+
+def test_auto_takes_the_associative_scan_on_an_accelerator(monkeypatch, rng):
+    from piest_jax._models import creep as _creep
+    from piest_jax._operators import play as _play
+
+    assert _play.resolved("scan") == "scan" and _play.resolved("associative") == "associative"
+    on_cpu = _play.resolved("auto")
+    assert on_cpu == ("kernel" if jax.default_backend() == "cpu" and pj.kernel_available() else "scan")
+    with pytest.raises(ValueError, match="unknown play method 'fast'"):
+        _play.resolved("fast")
+    # What an accelerator backend sees (the sequential scan there is a device loop, one sample
+    # per pass); the outputs are the same to the last bit.
+    monkeypatch.setattr(_play, "on_accelerator", lambda: True)
+    assert _play.resolved("auto") == "associative"
+    u = jnp.asarray(rng.standard_normal(173))  # a length no other test traces
+    r = jnp.asarray([0.0, 0.2, 0.7])
+    op = pj.PIOperator(r, [1.0, 0.5, 0.25], method="auto")
+    scan = pj.PIOperator(r, [1.0, 0.5, 0.25], method="scan")
+    assert " scan[" not in str(jax.make_jaxpr(op)(u)) and " scan[" in str(jax.make_jaxpr(scan)(u))
+    np.testing.assert_array_equal(op.regressor(u), scan.regressor(u))
+    np.testing.assert_allclose(op(u), scan(u), rtol=1e-14)
+    monkeypatch.setattr(_creep, "on_accelerator", lambda: True)
+    a, z0 = jnp.asarray([0.5, 0.9]), jnp.zeros(2)
+    assert " scan[" not in str(jax.make_jaxpr(lambda u: _creep.lag_states(u, a, z0, method="auto"))(u))
+    np.testing.assert_allclose(_creep.lag_states(u, a, z0, method="auto"), _creep.lag_states(u, a, z0, method="scan"),
+                               rtol=1e-12, atol=1e-14)

@@ -67,10 +67,11 @@ def add_arguments(p):
     )
     p.add_argument(
         "--play-method",
-        default="scan",
-        choices=("scan", "kernel", "auto"),
-        help="how the plays are computed: the JAX scan (default), or the compiled CPU kernel "
-        "(kernel; auto takes it on CPU when it was built), which gives the same outputs",
+        default="auto",
+        choices=("auto", "scan", "associative", "kernel"),
+        help="how the plays are computed: auto (default) takes the compiled kernel on a CPU and "
+        "the associative scan on a GPU; scan, associative and kernel ask for one; all give the "
+        "same outputs",
     )
     add_output_options(p, "piest-montecarlo")
 

@@ -18,8 +18,9 @@ class MapSettings(NamedTuple):
     samples between window starts; `dt` the sampling step; `P0` the RLS initial gain (P0·I);
     `rls_samples` samples the RLS has seen when its error is read; `families` indices into
     `FAMILIES` to draw from; `dtype` the floating type of the whole computation; `play_method`
-    how the play bank is computed (`"scan"`, or `"kernel"` / `"auto"` for the compiled CPU
-    kernel, which gives the same outputs to the last bit).
+    how the play bank is computed (`"auto"`, the default: the compiled kernel on a CPU, the
+    associative scan on an accelerator; or `"scan"`, `"associative"`, `"kernel"`; all give the
+    same outputs to the last bit).
     """
 
     n_samples: int
@@ -31,7 +32,7 @@ class MapSettings(NamedTuple):
     rls_samples: int
     families: tuple[int, ...]
     dtype: str
-    play_method: str = "scan"
+    play_method: str = "auto"
 
 
 def make_settings(
@@ -45,7 +46,7 @@ def make_settings(
     rls_samples: int | None = None,
     families=DEFAULT_FAMILIES,
     dtype=None,
-    play_method: str = "scan",
+    play_method: str = "auto",
 ) -> MapSettings:
     """Check and complete the settings of a map.
 

@@ -78,5 +78,5 @@ class HysteresisModel(eqx.Module):
         if play_states is not None:
             pi = PIOperator(pi.thresholds, pi.weights, play_states, method=pi.method)
         if creep is not None and creep_states is not None:
-            creep = Creep(creep.time_constants, creep.weights, creep.dt, creep_states)
+            creep = Creep(creep.time_constants, creep.weights, creep.dt, creep_states, method=creep.method)
         return HysteresisModel(pi, creep, self.offset if offset is None else offset, self.dt)

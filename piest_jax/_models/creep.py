@@ -29,8 +29,10 @@ from jaxtyping import Array, Float
 
 from .. import _checks
 from .._custom_types import Signal, SignalLike
+from .._operators.play import on_accelerator
 
 Lags = Float[Array, " lags"]
+LAG_METHODS = ("scan", "associative", "auto")
 
 
 def lag_step(z: Array, u: Array, a: Array) -> Array:
@@ -46,14 +48,17 @@ def lag_step(z: Array, u: Array, a: Array) -> Array:
 
 # Jitted at module level so that eager calls with the same shapes reuse one compiled program.
 @functools.partial(jax.jit, static_argnames="method")
-def lag_states(u: Array, a: Array, z0: Array, *, method: str = "scan") -> Array:
+def lag_states(u: Array, a: Array, z0: Array, *, method: str = "auto") -> Array:
     """The lags' states (T, K) for an input `u` (T,), decays `a` (K,) and initial states `z0` (K,).
 
-    **Arguments:** as for [`lag_step`][]; `method` is `"scan"` (sequential) or `"associative"`
-    (`lax.associative_scan` over the affine maps, O(log T) depth; equal up to rounding).
+    **Arguments:** as for [`lag_step`][]; `method` is `"scan"` (sequential), `"associative"`
+    (`lax.associative_scan` over the affine maps, O(log T) depth; equal up to rounding) or
+    `"auto"`: the scan on a CPU, the associative form on an accelerator.
 
     **Returns:** (T, K).
     """
+    if method == "auto":
+        method = "associative" if on_accelerator() else "scan"
     if method == "scan":
 
         def step(z, ut):
@@ -73,7 +78,7 @@ def lag_states(u: Array, a: Array, z0: Array, *, method: str = "scan") -> Array:
 
         Ac, Bc = lax.associative_scan(compose, (A, B))
         return Ac * z0 + Bc
-    raise ValueError(f"unknown lag method {method!r}; choose 'scan' or 'associative'")
+    raise ValueError(f"unknown lag method {method!r}; choose one of {LAG_METHODS}")
 
 
 def decays(log_time_constants: Array, dt) -> Array:
@@ -105,6 +110,9 @@ class Creep(eqx.Module):
     - `dt`: the sampling interval (> 0).
     - `initial_states`: the lags' states before the first sample, a scalar or (K,); None (the
       default) starts each lag at rest at the first input, z_k[-1] = u_0.
+    - `method`: `"scan"` (sequential), `"associative"` (`lax.associative_scan`, O(log T) depth,
+      equal up to rounding) or `"auto"` (the default: the scan on a CPU, the associative form on
+      an accelerator, where it ran 2,000 times faster on 10^5 samples, `experiments/bench_gpu.py`).
 
     `__call__` takes one signal (T,); batch with `jax.vmap`. Non-positive time constants or `dt`
     raise `ValueError`.
@@ -114,8 +122,11 @@ class Creep(eqx.Module):
     weights: Lags
     initial_states: Lags | None
     dt: float = eqx.field(static=True)
+    method: str = eqx.field(static=True, default="auto")
 
-    def __init__(self, time_constants, weights, dt, initial_states=None):
+    def __init__(self, time_constants, weights, dt, initial_states=None, *, method: str = "auto"):
+        if method not in LAG_METHODS:
+            raise ValueError(f"unknown lag method {method!r}; choose one of {LAG_METHODS}")
         tau = check_time_constants(time_constants)
         k = tau.shape[0]
         if not (isinstance(dt, (int, float, np.floating, np.integer)) and np.isfinite(dt) and dt > 0):
@@ -133,6 +144,7 @@ class Creep(eqx.Module):
                                 "initial_states")
             self.initial_states = jnp.broadcast_to(z0, (k,)).astype(dtype)
         self.dt = float(dt)
+        self.method = method
 
     @property
     def n_lags(self) -> int:
@@ -158,7 +170,7 @@ class Creep(eqx.Module):
         """The lags' states z (T, K) for the input `u` (T,)."""
         u = _checks.finite(_checks.signal(u), "u")
         u = u.astype(jnp.result_type(u, self.weights))
-        return lag_states(u, self.decays.astype(u.dtype), self._start(u))
+        return lag_states(u, self.decays.astype(u.dtype), self._start(u), method=self.method)
 
     def __call__(self, u: SignalLike) -> Signal:
         """The creep output Σ_k c_k z_k (T,) for the input `u` (T,)."""

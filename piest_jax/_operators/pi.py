@@ -11,7 +11,7 @@ from jaxtyping import Array
 from .. import _checks
 from .._custom_types import Regressor, Signal, SignalLike, States, Thresholds, Weights
 from .inverse import inverse_parameters
-from .play import METHODS, Method, _bank, _uses_kernel, play_step
+from .play import METHODS, Method, _bank, _uses_kernel, play_step, resolved
 
 
 # Jitted at module level so that eager calls with the same shapes reuse one compiled program (an
@@ -109,13 +109,13 @@ class PIOperator(AbstractHysteresisOperator):
         **Returns:** y (T,).
         """
         u = self._input(u)
-        if self.method == "associative":
+        method = resolved(self.method)
+        if method == "associative":
             return self.regressor(u) @ self.weights
-        if self.method in ("kernel", "auto"):
+        if method == "kernel":
             from . import kernel as _kernel
 
-            if _kernel.use_kernel(self.method):
-                return _kernel.pi_output(u, self.thresholds, self.initial_states, self.weights)
+            return _kernel.pi_output(u, self.thresholds, self.initial_states, self.weights)
         return _pi_scan(u, self.thresholds, self.weights, self.initial_states)
 
     def final_states(self, u: SignalLike) -> States:

@@ -100,8 +100,9 @@ def _warn_fallback() -> None:
 def use_kernel(method: str) -> bool:
     """Whether a play-bank `method` runs the compiled kernel here.
 
-    `"kernel"` asks for it; `"auto"` takes it on a CPU backend and the scan on others. On a CPU
-    backend without the compiled extension both fall back to the scan, warning once per process.
+    `"kernel"` asks for it; `"auto"` takes it on a CPU backend (on others, `play.resolved` takes
+    the associative scan). On a CPU backend without the compiled extension both fall back to the
+    scan, warning once per process.
 
     **Arguments:** `method`, the play method name.
 
