@@ -28,6 +28,19 @@ RATE = 10_000.0
 OUT = Path(__file__).parent / "results"
 
 
+def record(T: int):
+    """The benchmark's record of T samples: (t, u, y) as NumPy arrays."""
+    import numpy as np
+
+    import piest_jax as pj
+
+    t = np.arange(T) / RATE
+    u = np.sin(2 * np.pi * 20 * t) * (0.7 + 0.3 * np.sin(2 * np.pi * 1.3 * t + 0.5)) \
+        + 0.3 * np.sin(2 * np.pi * 53 * t)
+    y = np.asarray(pj.PIOperator(np.array(R_TRUE), np.array(W_TRUE), u[0])(u))
+    return t, u, y + SIGMA * np.random.default_rng(0).standard_normal(T)
+
+
 def one(T: int) -> dict:
     """Fit one record of T samples in this process; the measurements as a dict."""
     import resource
@@ -40,11 +53,7 @@ def one(T: int) -> dict:
 
     import piest_jax as pj
 
-    t = np.arange(T) / RATE
-    u = np.sin(2 * np.pi * 20 * t) * (0.7 + 0.3 * np.sin(2 * np.pi * 1.3 * t + 0.5)) \
-        + 0.3 * np.sin(2 * np.pi * 53 * t)
-    y = np.asarray(pj.PIOperator(np.array(R_TRUE), np.array(W_TRUE), u[0])(u))
-    y = y + SIGMA * np.random.default_rng(0).standard_normal(T)
+    t, u, y = record(T)
     rss_data = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     t0 = time.perf_counter()
     f = pj.fit_pi(u, y, 4, key=jax.random.key(0))

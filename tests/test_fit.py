@@ -447,3 +447,30 @@ def test_solver_objects_are_accepted(clean):
     np.testing.assert_allclose(dog.thresholds, R_TRUE, atol=1e-5)
     with pytest.raises(ValueError, match="the class Dogleg, not a solver: pass an instance"):
         pj.fit_pi(u, y, 3, solver=optx.Dogleg)
+
+
+def test_a_long_record_is_chosen_on_its_first_stretch(noisy, monkeypatch):
+    # Above SELECT_SAMPLES the candidates are fitted and scored on the stretch of that many
+    # samples from the first used one; the chosen model is fitted on every sample.
+    from piest_jax._identification import model_size
+
+    u, y, _ = noisy
+    used = np.ones(T)
+    used[:30] = 0.0
+    monkeypatch.setattr(model_size, "SELECT_SAMPLES", 250)
+    assert model_size.selection_stretch(used) == 280
+    sel = pj.select_plays(u, y, (2, 3), patience=None, n_starts=1, mask=used)
+    assert sel.selection_samples == 280 and sel.n_plays == 3
+    for n, score in zip(sel.candidates, sel.scores):
+        split = holdout_mask(280, 0.3)
+        f = pj.fit_pi(u[:280], y[:280], n, n_starts=1, mask=split * used[:280])
+        test = (split == 0) & (used[:280] > 0)
+        assert score == pytest.approx(np.sqrt(np.mean((np.asarray(f(u[:280]))[test] - y[:280][test]) ** 2)), rel=1e-6)
+    whole = pj.fit_pi(u, y, 3, n_starts=1, mask=used)
+    np.testing.assert_allclose(sel.fit.rmse, whole.rmse, rtol=1e-6)
+    choice = pj.select_model(u, y, 1.0, (2, 3), (0,), n_starts=1, mask=used)
+    assert choice.selection_samples == 280 and choice.n_plays == 3
+    assert choice.scores == pytest.approx(sel.scores, rel=1e-6)
+    np.testing.assert_allclose(choice.fit.rmse, whole.rmse, rtol=1e-6)
+    # BIC scores whole-record fits.
+    assert pj.select_plays(u, y, (2, 3), criterion="bic", n_starts=1).selection_samples == T

@@ -83,7 +83,8 @@ def test_the_selection_is_typed_and_reported(tmp_path, capsys):
     assert result.fit is result.selection.fit and result.fit.n_plays == result.selection.n_plays
     rep = _round_trip(result.to_json())
     assert rep["selection"] == {"criterion": "holdout", "candidates": [2, 3],
-                                "scores": list(result.selection.scores), "rejected": []}
+                                "scores": list(result.selection.scores), "rejected": [],
+                                "selection_samples": 300}
     assert rep["n_plays"] == result.fit.n_plays and "fit_from" not in rep
     # A saved report is a model file.
     path = pj.write_json(tmp_path / "fit.json", result.to_json())

@@ -178,7 +178,7 @@ def _solver_name(solver) -> str:
 def _selection_keys(sel) -> dict:
     if isinstance(sel, ModelSize):
         return {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores,
-                "rejected": sel.rejected}
+                "rejected": sel.rejected, "selection_samples": sel.selection_samples}
     # The play counts tried for the plain PI model (the first step of the search), then every
     # structure tried.
     base = [(c, s) for c, s in zip(sel.candidates, sel.scores) if c[1] == sel.candidates[0][1]]
@@ -188,6 +188,7 @@ def _selection_keys(sel) -> dict:
         "scores": [s for _, s in base],
         "models": [{"n_plays": c[0], "n_lags": c[1], "score": s, "rejected": c in sel.rejected}
                    for c, s in zip(sel.candidates, sel.scores)],
+        "selection_samples": sel.selection_samples,
     }
 
 

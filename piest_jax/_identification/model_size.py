@@ -25,6 +25,13 @@ candidate in line is taken.
 Candidates are tried from the smallest up, and the search stops once `patience` candidates in a
 row have not improved the best score (by more than `tolerance` for held-out error); the larger
 ones are then not fitted at all.
+
+On a long record the held-out search runs on a stretch of it: the `SELECT_SAMPLES` samples from
+the first one used (2^18, 26 s at 10 kHz), split into fitted part and held-out block as above;
+the chosen model is then fitted on every sample. Each candidate is a full nonlinear fit, so this
+keeps the choice's cost flat in the record's length (at 10^7 samples, seven candidates fitted on
+the whole record took eight times the final fit); a stretch of that length holds many input
+cycles of any record the choice can judge. BIC, which scores whole-record fits, uses every sample.
 """
 
 import dataclasses
@@ -38,6 +45,7 @@ from .fit import PIFit, fit_pi
 
 CRITERIA = ("holdout", "bic")
 HOLDOUT = 0.3  # the default held-out fraction
+SELECT_SAMPLES = 2**18  # the longest stretch the held-out search fits its candidates on
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +60,8 @@ class ModelSize:
     - `criterion`: `"holdout"` or `"bic"`.
     - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
     - `rejected`: the candidates not chosen because a parameter was undetermined.
+    - `selection_samples`: the samples the candidates were fitted and scored on (the whole
+      record, or its first `SELECT_SAMPLES` used ones; see the module notes).
     """
 
     n_plays: int
@@ -60,6 +70,7 @@ class ModelSize:
     criterion: str
     fit: PIFit
     rejected: tuple = ()
+    selection_samples: int | None = None
 
 
 def holdout_mask(T: int, holdout: float) -> np.ndarray:
@@ -85,6 +96,19 @@ SHARED_UP_TO = 2**14
 def padded_plays(n: int, largest: int, T: int) -> int:
     """The play count candidate `n` is solved with on a record of `T` samples (see above)."""
     return largest if T <= SHARED_UP_TO else n
+
+
+def selection_stretch(used: np.ndarray) -> int:
+    """The length of the record's first stretch that the held-out search runs on.
+
+    **Arguments:** `used` (T,), 1 on the samples a fit uses (the samples before the first one
+    used only drive the plays, so the stretch starts counting there).
+
+    **Returns:** the first used sample's index plus `SELECT_SAMPLES`, at most T.
+    """
+    T = used.shape[0]
+    first = int(np.argmax(used > 0)) if np.any(used > 0) else 0
+    return min(T, first + SELECT_SAMPLES)
 
 
 def select_plays(
@@ -115,6 +139,9 @@ def select_plays(
       start-up transient), as in [`fit_pi`][]; the hold-out block is scored on used samples only.
     - `fit_kwargs`: passed to [`fit_pi`][] (solver, positive_weights, n_starts, key, ...).
 
+    On a record longer than `SELECT_SAMPLES` the held-out search runs on its first stretch
+    (`selection_stretch`); the chosen model is fitted on the whole record.
+
     **Returns:** a [`ModelSize`][]. Raises `ValueError` for an unknown criterion or bad candidates.
     """
     if criterion not in CRITERIA:
@@ -136,15 +163,18 @@ def select_plays(
     per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
     largest = max(cands)
 
-    def fit_n(n, **kw):
-        return fit_pi(u, y, n, pad_plays=padded_plays(n, largest, T), **kw, **fit_kwargs)
-
     used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
     if used.shape != (T,):
         raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
+    S = selection_stretch(used) if criterion == "holdout" else T
+
+    def fit_n(n, stretch=T, **kw):
+        return fit_pi(u[:stretch], y[:stretch], n, pad_plays=padded_plays(n, largest, stretch), **kw,
+                      **fit_kwargs)
+
     if criterion == "holdout":
-        split = holdout_mask(T, holdout)
-        test = (split == 0) & (used > 0)
+        split = holdout_mask(S, holdout)
+        test = (split == 0) & (used[:S] > 0)
         if not test.any():
             raise ValueError("the held-out block has no used samples (all masked out)")
     n_used = int(np.sum(used > 0))
@@ -153,9 +183,9 @@ def select_plays(
     bar = progress(cands, desc="plays", quiet=quiet)
     for n in bar:
         if criterion == "holdout":
-            f = fit_n(n, mask=split * used)
-            pred = np.asarray(f(u))
-            score = float(np.sqrt(np.mean((pred[test] - np.asarray(y)[test]) ** 2)))
+            f = fit_n(n, S, mask=split * used[:S])
+            pred = np.asarray(f(u[:S]))
+            score = float(np.sqrt(np.mean((pred[test] - np.asarray(y[:S])[test]) ** 2)))
         else:
             f = fit_n(n, mask=mask)
             fits[n] = f
@@ -180,7 +210,7 @@ def select_plays(
             break
         rejected.add(chosen)
     return ModelSize(chosen, tuple(tried), tuple(float(s) for s in scores), criterion, fit,
-                     tuple(n for n in tried if n in rejected))
+                     tuple(n for n in tried if n in rejected), S)
 
 
 def _choose(tried, scores, rejected, tolerance):

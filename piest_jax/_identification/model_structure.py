@@ -19,7 +19,8 @@ search by itself: one lag fitted to a creep of two modes can land on a poorly de
 compromise that two lags resolve). The play count is not searched again with the chosen lags: that would double the
 cost, and a creep rarely makes plays that improved the held-out error useless. Every candidate
 is padded to the largest play and lag counts on records of up to `SHARED_UP_TO` samples, so that
-all share one compilation.
+all share one compilation. On a long record the candidates are fitted and scored on its first
+stretch, as in [`select_plays`][] (`selection_stretch`), and the chosen model on every sample.
 """
 
 import dataclasses
@@ -29,7 +30,7 @@ import numpy as np
 from .. import _checks
 from .._progress import progress
 from .fit import PIFit, fit_pi
-from .model_size import HOLDOUT, SHARED_UP_TO, holdout_mask
+from .model_size import HOLDOUT, SHARED_UP_TO, holdout_mask, selection_stretch
 
 LAG_CANDIDATES = (0, 1, 2, 3)
 
@@ -44,6 +45,8 @@ class ModelChoice:
     - `candidates`: the (n_plays, n_lags) pairs tried, in order; `scores`: their held-out RMSE.
     - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
     - `rejected`: the (n_plays, n_lags) pairs not chosen because a parameter was undetermined.
+    - `selection_samples`: the samples the candidates were fitted and scored on (the whole
+      record, or its first stretch: `selection_stretch`).
     """
 
     n_plays: int
@@ -52,6 +55,7 @@ class ModelChoice:
     scores: tuple
     fit: PIFit
     rejected: tuple = ()
+    selection_samples: int | None = None
 
     @property
     def structure(self) -> str:
@@ -101,29 +105,30 @@ def select_model(
     used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
     if used.shape != (T,):
         raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
-    split = holdout_mask(T, holdout)
-    test = (split == 0) & (used > 0)
+    S = selection_stretch(used)
+    split = holdout_mask(S, holdout)
+    test = (split == 0) & (used[:S] > 0)
     if not test.any():
         raise ValueError("the held-out block has no used samples (all masked out)")
-    shared = T <= SHARED_UP_TO
+    shared = S <= SHARED_UP_TO
     pad = dict(pad_plays=max(plays), pad_lags=max(lags)) if shared else {}
-    yn = np.asarray(y)
+    yn = np.asarray(y[:S])
     # Scores closer than this are rounding, not a gain (a noise-free record fits to ~1e-12 of
     # its spread; a flat one to ~1e-16 of its level).
-    fitted = yn[used > 0]
+    fitted = yn[used[:S] > 0]
     floor = 1e-8 * max(float(np.std(fitted)), 1e-6 * float(np.max(np.abs(fitted))), 1e-300)
     scores: dict = {}
     rejected: set = set()
     bar = progress(None, desc="models", quiet=quiet)
 
-    def fit_one(n, k, m):
-        kw = dict(pad) if shared else dict(pad_plays=None, pad_lags=None)
-        return fit_pi(u, y, n, n_lags=k, dt=dt, mask=m, **kw, **fit_kwargs)
+    def fit_one(n, k, m, stretch=T):
+        kw = dict(pad) if shared and stretch == S else dict(pad_plays=None, pad_lags=None)
+        return fit_pi(u[:stretch], y[:stretch], n, n_lags=k, dt=dt, mask=m, **kw, **fit_kwargs)
 
     def score(n, k):
         if (n, k) not in scores:
-            f = fit_one(n, k, split * used)
-            pred = np.asarray(f(u))
+            f = fit_one(n, k, split * used[:S], S)
+            pred = np.asarray(f(u[:S]))
             scores[(n, k)] = float(np.sqrt(np.mean((pred[test] - yn[test]) ** 2)))
             if not f.determined:
                 rejected.add((n, k))
@@ -165,4 +170,4 @@ def select_model(
         n, k = pick(left)
     cands = tuple(scores)
     return ModelChoice(n, k, cands, tuple(scores[c] for c in cands), fit,
-                       tuple(c for c in cands if c in rejected))
+                       tuple(c for c in cands if c in rejected), S)
