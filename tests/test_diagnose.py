@@ -214,6 +214,12 @@ def test_cli_writes_the_report(csv_files, tmp_path, capsys):
     assert rep["transferable_effects"] == ["delay"] and rep["record_specific_effects"] == []
     assert v["effects_used"] == ["delay"]
     assert (out / "report.png").stat().st_size > 0 and "# Diagnosis" in (out / "report.md").read_text()
+    # The named delay's value and standard error, in report.json and as a table in report.md.
+    u = rep["uncertainty"]
+    assert u["values"]["delay.delay_s"] == rep["parameters"]["delay"]["delay_s"]
+    assert u["std_errors"]["delay.delay_s"] > 0
+    assert f"| delay.delay_s | {u['values']['delay.delay_s']:.6g} | ± {u['std_errors']['delay.delay_s']:.4g} |" in (
+        out / "report.md").read_text()
 
 
 @pytest.mark.parametrize(
@@ -256,7 +262,7 @@ def test_cli_report_is_the_diagnosis_json(csv_files, tmp_path):
     assert list(rep) == list(expected) and list(rep["validation"]) == list(expected["validation"])
     # The order report.json has always had, which `Diagnosis.to_json` documents.
     assert list(rep) == ["effects", "transferable_effects", "record_specific_effects", "baseline_rmse",
-                         "final_rmse", "noise_std_estimate", "candidates", "parameters", "refinement",
+                         "final_rmse", "noise_std_estimate", "candidates", "parameters", "uncertainty", "refinement",
                          "rounds", "pruned", "heldout", "n_samples", "search_step", "where", "validation",
                          "data"]
     assert list(rep["validation"]) == [

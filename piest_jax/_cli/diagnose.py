@@ -18,7 +18,8 @@ candidates shows on a terminal (not with --quiet or --json). With --json it prin
 (the text of report.json) instead of the paths. Writes
   DIR/report.json  effects (in order), baseline_rmse, final_rmse, noise_std_estimate,
                    candidates (first-round held-out scores), parameters (of the named
-                   effects), refinement (solver result, steps, RMSE before/after,
+                   effects), uncertainty (their values and std errors by name, and the
+                   offset's; undetermined names), refinement (solver result, steps, RMSE before/after,
                    which fit was kept), rounds, where (located disagreements),
                    transferable_effects (functions of the input) and
                    record_specific_effects ({record_specific}: tied to
@@ -152,6 +153,14 @@ def _markdown(d, data):
         if par:
             lines.append(f"- `{e}`: " + ", ".join(f"{k} = {x:.4g}" if isinstance(x, float) else f"{k} = {x}"
                                                     for k, x in par.items()))
+    if d.uncertainty is not None:
+        u = d.uncertainty
+        lines += ["", f"Standard errors ({u['method']}, from the final model's Jacobian on {u['samples']} samples):",
+                  "", "| parameter | value | std error | |", "|---|---|---|---|"]
+        for n, x in u["values"].items():
+            se = u["std_errors"][n]
+            lines.append(f"| {n} | {x:.6g} | {'undetermined (rank)' if se is None else f'± {se:.4g}'} | "
+                         f"{'undetermined' if n in u['undetermined'] else ''} |")
     lines += ["", "## Rounds (held-out RMSE per candidate; score = penalised gain / noise variance)", ""]
     for i, r in enumerate(d.rounds):
         lines.append(f"Round {i + 1}: current held-out RMSE {r['current_heldout_rmse']:.4g}; best "

@@ -27,6 +27,7 @@ from .._progress import progress
 from . import locate as _locate
 from . import model as _model
 from . import refine as _refine
+from . import uncertainty as _uncertainty
 from .diagnosis import Diagnosis, DiagnosisValidation
 from .effect import AbstractEffect
 from .effects import EFFECT, EFFECTS, chain, check_names
@@ -293,10 +294,12 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
         # Both models get the same joint refinement, so the comparison stays fair.
         models[label] = (dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None
                          else _refined(full, thin, c, f, solver))
+    # The named effects' standard errors, on the samples the refinement ran on.
+    uncertainty = _uncertainty.parameter_uncertainty(thin, models["model_final"], sc) if cfg else None
     return dict(
         effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=float(np.sqrt(sigma2)) * sc.y_half,
         step=step, heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
-        heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half, **models,
+        heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half, uncertainty=uncertainty, **models,
     )
 
 
@@ -455,6 +458,7 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnos
         noise_std_estimate=s["noise_std"],
         parameters={e: EFFECT[e].describe(s["model_final"]["cfg"][e]) for e in named},
         refinement={k: _refinement(s[k], sc) for k in ("model_base", "model_final") if "refinement" in s[k]},
+        uncertainty=s["uncertainty"],
         rounds=s["rounds"],
         pruned=s["pruned"],
         heldout_baseline_rmse=s["heldout_rmse_base"],

@@ -98,6 +98,11 @@ class Diagnosis(Mapping):
       the correlation; structured places first.
     - `baseline_prediction`, `final_prediction`: (T,) both models on the record.
     - `validation`: a [`DiagnosisValidation`][piest_jax.DiagnosisValidation], or None.
+    - `uncertainty`: the named effects' numbers (as in `parameters`, by dotted name such as
+      `delay.delay_s` or `creep.time_constants_s[0]`) and the final model's offset with their
+      standard errors (`values`, `std_errors`, `undetermined`, `method`, `samples`: the
+      Newey-West estimate from the refined model's Jacobian, as `fit_pi` gives its own); None
+      when no effect is named.
 
     **Properties:** `transferable_effects` (functions of the input, which carry over to another
     record), `record_specific_effects` (tied to this record: its unrecorded past, its drift),
@@ -120,6 +125,7 @@ class Diagnosis(Mapping):
     baseline_prediction: np.ndarray
     final_prediction: np.ndarray
     validation: DiagnosisValidation | None = None
+    uncertainty: dict | None = None
 
     @property
     def transferable_effects(self) -> list:
@@ -147,7 +153,8 @@ class Diagnosis(Mapping):
 
         **Returns:** a new dict of numbers, strings and lists, in report.json's order:
         `effects`, `transferable_effects`, `record_specific_effects`, `baseline_rmse`,
-        `final_rmse`, `noise_std_estimate`, `candidates`, `parameters`, `refinement`, `rounds`,
+        `final_rmse`, `noise_std_estimate`, `candidates`, `parameters`, `uncertainty` (when an
+        effect is named), `refinement`, `rounds`,
         `pruned`, `heldout` (`baseline_rmse`, `final_rmse`), `n_samples`, `search_step`,
         `where` and, with a validation record, `validation`.
         """
@@ -160,6 +167,7 @@ class Diagnosis(Mapping):
             "noise_std_estimate": self.noise_std_estimate,
             "candidates": copy.deepcopy(self.candidates),
             "parameters": copy.deepcopy(self.parameters),
+            **({"uncertainty": copy.deepcopy(self.uncertainty)} if self.uncertainty is not None else {}),
             "refinement": copy.deepcopy(self.refinement),
             "rounds": copy.deepcopy(self.rounds),
             "pruned": list(self.pruned),
