@@ -36,9 +36,11 @@ def one(T: int, folder: Path) -> dict:
     # Each length in a fresh process; the children's peak is the largest so far, so lengths run
     # from the shortest up and the figure for each is the running maximum.
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "piest_jax", "fit", str(csv), "--out", str(out), "--quiet"],
-                   check=True, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "piest_jax", "fit", str(csv), "--out", str(out), "--quiet"],
+                          capture_output=True, text=True)
     secs = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"piest fit on {T} samples: exit {proc.returncode}: {proc.stderr.strip()[-2000:]}")
     fit = json.loads((out / "fit.json").read_text())
     r = np.asarray(fit["thresholds"])
     row = dict(n_samples=T, seconds=secs, seconds_per_sample=secs / T,

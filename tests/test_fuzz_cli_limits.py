@@ -274,3 +274,14 @@ def test_a_failed_write_names_the_result_not_the_temporary(files, capsys, monkey
     assert err == f"piest simulate: error: {out / 'simulate.csv'}: cannot write it (No space left on device); " \
         "nothing was written\n"
     assert not out.exists()
+
+
+def test_a_long_levenberg_marquardt_fit_is_sized_by_its_chunks():
+    # Past 2^16 samples LM accumulates normal equations chunk by chunk: memory grows with a few
+    # copies of the record, not with samples x parameters x starts (a 10^7-sample fit measured
+    # 1.25 GB); other solvers hold the whole Jacobian.
+    from piest_jax._cli.memory import fit_bytes
+
+    chunked = fit_bytes(10**7, 4, 40, chunked_past=2**16)
+    assert 0.5 * 2**30 < chunked < 2 * 2**30 < fit_bytes(10**7, 4, 40) / 10
+    assert fit_bytes(1000, 4, 40, chunked_past=2**16) == fit_bytes(1000, 4, 40)

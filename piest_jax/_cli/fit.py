@@ -8,7 +8,7 @@ import numpy as np
 from .._identification.band import prediction_band
 from .._identification.covariance import table as parameter_table
 from .._identification.figures import fit_figure
-from .._identification.fit import SOLVERS
+from .._identification.fit import LONG_RECORD, SOLVERS
 from .._identification.identify import MODELS, SATURATING, check_options, fit_mask, identify, plan
 from .._identification.model_size import CRITERIA
 from . import fit_saturating, memory
@@ -238,7 +238,8 @@ def run(args) -> int:
     except ValueError as e:
         raise _as_options(e) from None
     memory.require(
-        memory.fit_bytes(rec.n_samples, args.starts, p.n_parameters),
+        memory.fit_bytes(rec.n_samples, args.starts, p.n_parameters,
+                         chunked_past=LONG_RECORD if args.solver == "lm" else None),
         f"--starts {args.starts} on {args.data} ({rec.n_samples} samples, up to {p.n_parameters} parameters)",
         "use fewer --starts, fewer plays or a shorter record",
     )
