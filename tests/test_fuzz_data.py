@@ -13,9 +13,20 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from piest_jax._data import record as _record
 from piest_jax._data.record import MIN_SAMPLES, DataError, load_record
 
 N_ROWS = 16
+
+
+@pytest.fixture(autouse=True, scope="module", params=["lines", "stream"])
+def reader(request):
+    """Every test twice: small files as the line-by-line parser reads them, and as a large file is
+    read (NumPy's parser straight from disk first, the line-by-line one for whatever it leaves)."""
+    default = _record.STREAM_BYTES
+    _record.STREAM_BYTES = 0 if request.param == "stream" else default
+    yield request.param
+    _record.STREAM_BYTES = default
 
 
 def _clean(n=N_ROWS, scale_u=1.0, scale_y=1.0, dt=0.01, t0=0.0):
