@@ -7,66 +7,53 @@ safe in any program (show one in a notebook with `display(fig)`, save it with
 
 import numpy as np
 
-# Points per drawn line. A figure resolves about a thousand columns, so a longer record is drawn
-# from fewer points chosen to look the same (`envelope`, `loop_points`); its numbers (the RMSE,
-# the band's coverage) use every sample. Drawing 10^7 samples whole took 3 GB and minutes.
+# A figure resolves some hundreds of pixel columns, and the renderer's work grows with the length
+# of the lines it draws. A long record is therefore drawn from the extremes of `BINS` bins of
+# consecutive samples (`bin_extremes`, shaded between them: every excursion is in the ink) and its
+# loop from `STRETCHES` evenly spaced stretches of the record (`loop_stretches`), at most
+# `MAX_POINTS` samples in all; the numbers (the RMSE, the band's coverage) use every sample.
+# Drawn whole, 10^7 samples took 3 GB and minutes.
 MAX_POINTS = 100_000
+BINS = 2000
+STRETCHES = 50
 
 
-def envelope(t, y, bins: int = MAX_POINTS // 2):
-    """A time series reduced to each bin's smallest and largest value, in time order.
+def bin_extremes(t, lower, upper, bins: int = BINS):
+    """A series (or a band) reduced to each bin's lowest `lower` and highest `upper` value.
 
-    **Arguments:** `t`, `y` (T,); `bins`, the number of bins of consecutive samples.
+    **Arguments:** `t`, `lower`, `upper` (T,) (pass a series twice for its own envelope);
+    `bins`, the number of bins of consecutive samples.
 
-    **Returns:** `(t, y)` of at most 2 `bins` points (the series itself when it is no longer),
-    drawn as the same ink: every excursion of the series is in it.
-    """
-    t, y = np.asarray(t), np.asarray(y)
-    T = y.shape[0]
-    if T <= 2 * bins:
-        return t, y
-    k = -(-T // bins)
-    n = T // k * k
-    blocks = y[:n].reshape(-1, k)
-    base = np.arange(0, n, k)
-    lo, hi = base + np.argmin(blocks, axis=1), base + np.argmax(blocks, axis=1)
-    idx = np.sort(np.concatenate([lo, hi, np.arange(n, T)]))
-    return t[idx], y[idx]
-
-
-def band_envelope(t, lower, upper, bins: int = MAX_POINTS // 2):
-    """A band reduced to each bin's lowest lower and highest upper edge (at the bin's centre).
-
-    **Returns:** `(t, lower, upper)` of at most `bins` + 1 points (the band itself when short).
+    **Returns:** `(t, lower, upper)`: at each bin's first sample, the bin's extremes; the inputs
+    themselves when T <= 2 `bins`.
     """
     t, lower, upper = (np.asarray(a) for a in (t, lower, upper))
     T = t.shape[0]
     if T <= 2 * bins:
         return t, lower, upper
-    k = -(-T // bins)
-    edges = np.arange(0, T, k)
-    return (t[np.minimum(edges + k // 2, T - 1)], np.minimum.reduceat(lower, edges),
-            np.maximum.reduceat(upper, edges))
+    edges = np.arange(0, T, -(-T // bins))
+    return t[edges], np.minimum.reduceat(lower, edges), np.maximum.reduceat(upper, edges)
 
 
-def loop_points(u, max_points: int = MAX_POINTS):
-    """Indices of a loop's samples to draw: every k-th one and the input's reversals.
+def loop_stretches(T: int, max_points: int = MAX_POINTS, stretches: int = STRETCHES):
+    """Which samples of a long record a loop figure draws: evenly spaced stretches of it.
 
-    A loop turns where the input reverses, so those samples are kept (when there are fewer than
-    `max_points`) and a stride thins the rest.
-
-    **Returns:** sorted indices (all of them for a record of at most `max_points` samples).
+    **Returns:** `(index, gaps)`: sample indices (all of them when T <= `max_points`) and a
+    boolean mask, True where a stretch ends (the line is broken there).
     """
-    u = np.asarray(u)
-    T = u.shape[0]
     if T <= max_points:
-        return np.arange(T)
-    du = np.diff(u)
-    turns = np.flatnonzero(du[1:] * du[:-1] < 0) + 1
-    keep = np.arange(0, T, -(-T // max_points))
-    if turns.size < max_points:
-        keep = np.union1d(keep, turns)
-    return np.union1d(keep, [T - 1])
+        return np.arange(T), np.zeros(T, bool)
+    length = max_points // stretches
+    starts = np.linspace(0, T - length, stretches).astype(int)
+    index = (starts[:, None] + np.arange(length)[None, :]).ravel()
+    gaps = np.zeros(index.size, bool)
+    gaps[length - 1 :: length] = True
+    return index, gaps
+
+
+def _broken(a, gaps):
+    """`a` with a NaN after every True in `gaps` (matplotlib breaks a line at NaN)."""
+    return np.insert(np.asarray(a, float), np.flatnonzero(gaps) + 1, np.nan)
 
 
 def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
@@ -94,17 +81,23 @@ def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
     fig = Figure(figsize=(11, 4))
     a1, a2 = fig.subplots(1, 2)
     uu, yu, mu = u[used], y[used], ym[used]
-    drawn = loop_points(uu)
-    a1.plot(uu[drawn], yu[drawn], "k", lw=0.7, label="measured")
-    a1.plot(uu[drawn], mu[drawn], "C1", lw=0.7, label="model")
+    drawn, gaps = loop_stretches(uu.shape[0])
+    part = "" if drawn.size == uu.size else f" ({STRETCHES} stretches of {drawn.size // STRETCHES})"
+    a1.plot(_broken(uu[drawn], gaps), _broken(yu[drawn], gaps), "k", lw=0.7, label="measured" + part)
+    a1.plot(_broken(uu[drawn], gaps), _broken(mu[drawn], gaps), "C1", lw=0.7, label="model")
     a1.set(xlabel="input u", ylabel="output y", title=f"{title}: loop")
     a1.legend(fontsize=8, loc="upper left")
     if band is not None:
         lower, upper = (np.asarray(b) for b in band)
         inside = float(np.mean(((y >= lower) & (y <= upper))[used]))
-        a2.fill_between(*band_envelope(t, lower - ym, upper - ym), color="C1", alpha=0.3, lw=0,
+        # Above the residual, translucent, so both show.
+        a2.fill_between(*bin_extremes(t, lower - ym, upper - ym), color="C1", alpha=0.3, lw=0, zorder=3,
                         label=f"band ({100 * inside:.1f} % inside)")
-    a2.plot(*envelope(t, y - ym), lw=0.6)
+    e = y - ym
+    if e.shape[0] > 2 * BINS:
+        a2.fill_between(*bin_extremes(t, e, e), color="C0", lw=0.6)
+    else:
+        a2.plot(t, e, lw=0.6)
     if mask is not None and not np.all(np.asarray(mask)):
         a2.axvspan(t[0], t[np.argmax(used)], color="0.85", label="not fitted")
         # Scaled to the fitted samples: a transient left out would otherwise flatten the rest.
