@@ -241,6 +241,26 @@ def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, mon
     assert pj.load_model(out / "fit.json").thresholds.shape == (3,)
 
 
+def test_a_long_float32_record_keeps_its_rank():
+    # The chunked factor's rounding grows like a sum's, so the rank floor is sqrt(N) eps, not
+    # N eps: a float32 fit on 10^6 samples whose Jacobian has condition ~40 is determined, and a
+    # column that repeats another is still free.
+    rng = np.random.default_rng(5)
+    N = 10**6
+    J = rng.standard_normal((N, 4)) @ np.array([[1, 1, 0, 0], [0, 0.05, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    e = rng.standard_normal(N)
+    eps32 = np.finfo(np.float32).eps
+    R = np.linalg.qr(J, mode="r")
+    assert N * eps32 > 1 / np.linalg.cond(J / np.linalg.norm(J, axis=0))  # the old floor would drop it
+    _, se, deficient, info = _cov.estimate_moments(R, np.eye(4), float(e @ e), N, method="gauss-newton",
+                                                   window=1, eps=eps32)
+    assert info["rank"] == 4 and not deficient.any() and np.all(np.isfinite(se))
+    R2 = np.linalg.qr(np.column_stack([J, J[:, 0]]), mode="r")
+    _, se2, deficient2, info2 = _cov.estimate_moments(R2, np.eye(5), float(e @ e), N, method="gauss-newton",
+                                                      window=1, eps=eps32)
+    assert info2["rank"] == 4 and deficient2.tolist() == [True, False, False, False, True]
+
+
 @pytest.mark.parametrize("method", _cov.METHODS)
 @pytest.mark.parametrize("states, lags", [(False, 0), (True, 2)])
 def test_long_records_give_the_dense_estimate_in_bounded_memory(method, states, lags):
@@ -260,11 +280,12 @@ def test_long_records_give_the_dense_estimate_in_bounded_memory(method, states, 
     want = _cov.estimate(np.asarray(J)[:, index], e, method=method)
     window = _cov.bandwidth(e) if method == "newey-west" else 1
     assert method == "gauss-newton" or window > 2
-    JtJ, blocks, ete = _cov.moments(_fit.run, layout, theta, un, y, mask, s, xn, zn, dt, window, 64)
-    np.testing.assert_allclose(JtJ, np.asarray(J).T @ np.asarray(J), rtol=1e-10, atol=1e-10)
-    got = _cov.estimate_moments(np.asarray(JtJ)[np.ix_(index, index)], np.asarray(blocks)[np.ix_(index, index)],
+    R, blocks, ete = _cov.moments(_fit.run, layout, theta, un, y, mask, s, xn, zn, dt, window, 64)
+    np.testing.assert_allclose(np.asarray(R).T @ np.asarray(R), np.asarray(J).T @ np.asarray(J), rtol=1e-10,
+                               atol=1e-10)
+    got = _cov.estimate_moments(np.asarray(R)[:, index], np.asarray(blocks)[np.ix_(index, index)],
                                 float(ete), 1000, method=method, window=window)
-    # The Gram route loses accuracy like cond(J)^2 eps where the SVD of J loses cond(J) eps.
+    # A bound that holds for the factor and for JᵀJ alike (which lose cond(J) and cond(J)^2 eps).
     Js = np.asarray(J)[:, index] / np.linalg.norm(np.asarray(J)[:, index], axis=0)
     rtol = 10 * np.linalg.cond(Js) ** 2 * np.finfo(float).eps
     assert rtol < 1e-5

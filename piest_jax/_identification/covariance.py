@@ -193,9 +193,11 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     weights (0 leaves a sample out), `window` the Newey-West block length and `chunk` the chunk
     length.
 
-    **Returns:** `(JtJ (p, p), blocks (p, p), eTe)`: JᵀJ and eᵀe of the weighted rows, and
-    Σ_t W_t W_tᵀ over the overlapping block sums W_t = Σ of g_i = J_i e_i over the `window`
-    samples ending at t (every t >= window - 1).
+    **Returns:** `(R (p, p), blocks (p, p), eTe)`: the triangular factor of the weighted rows'
+    J = QR, by a QR of the factor so far stacked on each chunk's rows (so RᵀR = JᵀJ, with J's
+    singular values to the accuracy of a QR of J, where JᵀJ itself would square its condition
+    number), eᵀe, and Σ_t W_t W_tᵀ over the overlapping block sums W_t = Σ of g_i = J_i e_i over
+    the `window` samples ending at t (every t >= window - 1).
     """
     p = theta.shape[0]
     T = u.shape[0]
@@ -204,18 +206,19 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     s0, ds0, rows = chunk_rows(run, layout, theta, s, x0, z0, dt)
 
     def body(carry, ch):
-        states, dstates, tail, JtJ, blocks, ete = carry
+        states, dstates, tail, R, blocks, ete = carry
         uu, yy, mm, ii = ch
         pred, after, J, dafter = rows(states, dstates, uu)
         J = J * mm[None, :]
         e = (yy - pred) * mm
         W, tail = block_sums(tail, (J * e[None, :]).T, ii, T)
-        return (after, dafter, tail, JtJ + J @ J.T, blocks + W.T @ W, ete + e @ e), None
+        R = jnp.linalg.qr(jnp.concatenate([R, J.T]), mode="r")
+        return (after, dafter, tail, R, blocks + W.T @ W, ete + e @ e), None
 
     zero = jnp.zeros((p, p), theta.dtype)
     init = (s0, ds0, jnp.zeros((window, p), theta.dtype), zero, zero, jnp.zeros((), theta.dtype))
-    (_, _, _, JtJ, blocks, ete), _ = lax.scan(body, init, data)
-    return JtJ, blocks, ete
+    (_, _, _, R, blocks, ete), _ = lax.scan(body, init, data)
+    return R, blocks, ete
 
 
 def block_sums(tail, g, ii, T: int):
@@ -272,25 +275,33 @@ def estimate(J, e, *, method: str = "newey-west", eps=None):
     return _sandwich(S, Vt, norms, N, p, float(e @ e), method, b, blocks, eps, rank_from_gram=False)
 
 
-def estimate_moments(JtJ, blocks, ete, N: int, *, method: str, window, eps=None):
-    """`estimate` from JᵀJ, the block sums' Σ W Wᵀ and eᵀe ([`moments`][]), for long records.
+def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=None):
+    """`estimate` from J's triangular factor, the block sums' Σ W Wᵀ and eᵀe ([`moments`][]),
+    for records too long to hold J.
 
-    The singular values of the column-scaled J come from the eigenvalues of its Gram matrix,
-    which resolve them only down to about sqrt(eps) of the largest: the rank test uses that floor
-    when it is above `estimate`'s (so a long record's rank is judged as a shorter one's would be).
+    The singular values of the column-scaled J are those of the column-scaled factor. The rank
+    test's floor is max(√N, p)·eps·s_max here, where `estimate`'s is max(N, p)·eps·s_max: the
+    factor is accumulated chunk by chunk, so its rounding grows like that of a sum of N terms,
+    and N·eps would call every parameter of a float32 fit on 10⁶ samples free (0.12 s_max).
 
-    **Arguments:** `JtJ`, `blocks` (p, p), `ete`; `N` the fitted samples; `method`; `window` the
-    block length `blocks` was summed over; `eps` as in `estimate`.
+    **Arguments:** `factor` (k, p), any matrix with factorᵀ factor = JᵀJ (the `R` of `moments`,
+    its columns selected and mapped); `blocks` (p, p), `ete`; `N` the fitted samples; `method`;
+    `window` the block length `blocks` was summed over; `eps` as in `estimate`.
 
     **Returns:** as `estimate`.
     """
     if method not in METHODS:
         raise ValueError(f"unknown covariance method {method!r}; choose one of {METHODS}")
-    S, Vt, norms = _gram_svd(JtJ)
-    p = norms.shape[0]
+    factor = np.asarray(factor, np.float64)
+    p = factor.shape[1]
+    norms = np.linalg.norm(factor, axis=0)
+    d = np.where(norms > 0, norms, 1.0)
+    _, S, Vt = np.linalg.svd(factor / d, full_matrices=True)
+    S = np.pad(S, (0, p - S.shape[0]))  # a factor of fewer rows than columns: the rest are zero
     b = int(window) if method == "newey-west" else None
-    return _sandwich(S, Vt, norms, N, p, float(ete), method, b,
-                     None if b is None else np.asarray(blocks, np.float64), eps, rank_from_gram=True)
+    return _sandwich(S, Vt, norms, int(np.ceil(np.sqrt(N))), p, float(ete), method, b,
+                     None if b is None else np.asarray(blocks, np.float64), eps, rank_from_gram=False,
+                     n_samples=N)
 
 
 def _gram_svd(G):
@@ -318,8 +329,8 @@ def _identifiable(S, Vt, norms, N, p, eps, *, rank_from_gram):
 
 
 def gram_deficient(G, N: int, eps=None):
-    """The parameters a Gram matrix `G` = JᵀJ (p, p) of `N` rows leaves free, judged as
-    [`estimate_moments`][] judges them.
+    """The parameters a Gram matrix `G` = JᵀJ (p, p) of `N` rows leaves free, judged from its
+    eigenvalues, which resolve J's scaled singular values down to about √eps of the largest.
 
     **Returns:** (p,) booleans.
     """
@@ -327,10 +338,12 @@ def gram_deficient(G, N: int, eps=None):
     return _identifiable(S, Vt, norms, N, norms.shape[0], eps, rank_from_gram=True)[1]
 
 
-def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, eps, *, rank_from_gram):
-    """The covariance from the scaled J's singular values `S` and right vectors `Vt`."""
+def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, eps, *, rank_from_gram, n_samples=None):
+    """The covariance from the scaled J's singular values `S` and right vectors `Vt`; `N` sets
+    the rank test's floor and `n_samples` (default `N`) counts the samples."""
     d = np.where(norms > 0, norms, 1.0)
     rank, deficient = _identifiable(S, Vt, norms, N, p, eps, rank_from_gram=rank_from_gram)
+    N = N if n_samples is None else n_samples
     V = Vt[:rank].T
     bread = (V / S[:rank] ** 2) @ V.T / np.outer(d, d)  # (JᵀJ)⁺ on the identifiable subspace
     dof = N - p
@@ -469,10 +482,11 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
         pred = s.y_mid + s.y_half * run(jnp.asarray(un), *_natural(layout, theta, s, x0, z0, dt))
         e = (np.asarray(y) - np.asarray(pred))[used] * np.asarray(mask)[used]
         window = bandwidth(e)
-    JtJ, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
-    JtJ, blocks = np.asarray(JtJ)[np.ix_(index, index)], np.asarray(blocks)[np.ix_(index, index)]
-    JtJ, blocks = T.T @ JtJ @ T, T.T @ blocks @ T
-    return estimate_moments(JtJ, blocks, float(ete), int(used.sum()), method=method, window=window,
+    R, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
+    # J's selected columns mapped by T are Q (R[:, index] T): the same singular values.
+    factor = np.asarray(R, np.float64)[:, index] @ T
+    blocks = T.T @ np.asarray(blocks, np.float64)[np.ix_(index, index)] @ T
+    return estimate_moments(factor, blocks, float(ete), int(used.sum()), method=method, window=window,
                             eps=eps)
 
 
