@@ -32,10 +32,11 @@ from .scaling import Scaling
 
 
 def _numbers(d: dict, prefix: str) -> dict:
-    """The numeric entries of a `describe` dict, by dotted name (lists indexed)."""
+    """The parameters in a `describe` dict, by dotted name (lists indexed); words and whole
+    numbers (a form, a filter's order) are structure, not estimates."""
     out = {}
     for k, v in d.items():
-        if isinstance(v, bool) or isinstance(v, str):
+        if isinstance(v, (bool, str, int)):
             continue
         if isinstance(v, (list, tuple)):
             out.update({f"{prefix}.{k}[{i}]": float(x) for i, x in enumerate(v)})

@@ -81,7 +81,7 @@ def resolved(method: str) -> str:
 
     `"auto"` is the compiled kernel on a CPU backend where it is built, the associative scan on
     an accelerator (where one step of the sequential scan is a pass of a device loop: on an H100
-    the associative form ran 300 to 3000 times faster on one signal and 7 times on a batch of
+    the associative form ran 330 to 3,600 times faster on one signal and 7 times on a batch of
     4096, `experiments/bench_gpu.py`), and the scan otherwise. `"kernel"` without the compiled
     extension falls back to the scan (warning once); on an accelerator it is refused.
 
