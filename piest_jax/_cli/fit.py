@@ -58,9 +58,9 @@ Jacobian's rank leaves free, is undetermined: named on stderr and in fit.json, a
 by --plays auto or --model auto.
 --model auto (the default) chooses plain PI or PI + creep by held-out error on the last 30 %
 of the record (of its first 262,144 samples on a longer record, the chosen model then fitted on
-all; fit.json's selection_samples): first the number of plays without creep, then 1, 2, ... lags (--lags) at that
-play count, each kept only if it predicts the held-out block better; --model pi and
---model pi+creep fix the structure (with --lags K, or --time-constants T1,T2,... as the lags'
+all; fit.json's selection_samples): first the number of plays without creep, then 1, 2, ...
+lags (--lags) at that play count, each kept only if it predicts the held-out block better;
+--model pi and --model pi+creep fix the structure (with --lags K, or --time-constants T1,T2,... as the lags'
 starting time constants in the record's time unit). --plays auto (the default) picks the number
 of plays among --candidates, trying them from the smallest up and stopping after two in a row
 that do not improve the score (--criterion bic only with --model pi; a progress bar shows on a

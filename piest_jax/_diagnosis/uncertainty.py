@@ -93,10 +93,10 @@ def parameter_uncertainty(p, model_entry: dict, sc: Scaling, *, method: str = "n
     of samples the Jacobian was taken on).
     """
     theta, st, cfg = parameters(model_entry)
-    data, y, mask = data_of(p, model_entry["norm"], pad=False)
+    data, y, _ = data_of(p, model_entry["norm"], pad=False)
     flat, unravel = jax.flatten_util.ravel_pytree({k: jnp.asarray(v) for k, v in theta.items()})
     J, e = (np.asarray(a) for a in _jacobian(flat, unravel, st, data, y))
-    cov, _, deficient, _ = _cov.estimate(J, e, method=method)
+    cov, _, deficient, _ = _cov.estimate(J, e, method=method, eps=np.finfo(J.dtype).eps)
 
     base = _described(cfg, unravel(flat), sc)
     names = list(base)

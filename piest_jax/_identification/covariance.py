@@ -272,7 +272,7 @@ def estimate(J, e, *, method: str = "newey-west", eps=None):
         cs = np.concatenate([np.zeros((1, p)), np.cumsum(J * e[:, None], axis=0)])
         W = cs[b:] - cs[:-b]
         blocks = W.T @ W
-    return _sandwich(S, Vt, norms, N, p, float(e @ e), method, b, blocks, eps, rank_from_gram=False)
+    return _sandwich(S, Vt, norms, N, p, float(e @ e), method, b, blocks, _floor(N, p, eps))
 
 
 def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=None):
@@ -299,9 +299,8 @@ def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=No
     _, S, Vt = np.linalg.svd(factor / d, full_matrices=True)
     S = np.pad(S, (0, p - S.shape[0]))  # a factor of fewer rows than columns: the rest are zero
     b = int(window) if method == "newey-west" else None
-    return _sandwich(S, Vt, norms, int(np.ceil(np.sqrt(N))), p, float(ete), method, b,
-                     None if b is None else np.asarray(blocks, np.float64), eps, rank_from_gram=False,
-                     n_samples=N)
+    return _sandwich(S, Vt, norms, N, p, float(ete), method, b,
+                     None if b is None else np.asarray(blocks, np.float64), _floor(np.sqrt(N), p, eps))
 
 
 def _gram_svd(G):
@@ -315,12 +314,15 @@ def _gram_svd(G):
     return np.sqrt(np.maximum(lam[order], 0.0)), V[:, order].T, norms
 
 
-def _identifiable(S, Vt, norms, N, p, eps, *, rank_from_gram):
-    """J's numerical rank and the parameters it leaves free (rule 1 of the module notes)."""
-    eps = np.finfo(np.float64).eps if eps is None else float(eps)
-    rel = max(N, p) * eps
-    if rank_from_gram:
-        rel = max(rel, np.sqrt(eps))
+def _floor(rows, p, eps):
+    """The rank test's floor relative to the largest singular value: max(rows, p)·eps, eps
+    float64's by default (NumPy's `matrix_rank` rule for a J of `rows` rows)."""
+    return max(rows, p) * (np.finfo(np.float64).eps if eps is None else float(eps))
+
+
+def _identifiable(S, Vt, norms, p, rel):
+    """J's numerical rank and the parameters it leaves free (rule 1 of the module notes): the
+    singular values below `rel` times the largest are dropped."""
     tol = (S[0] if S.size and S[0] > 0 else 1.0) * rel
     rank = int(np.sum(S > tol))
     null = Vt[rank:].T
@@ -335,15 +337,16 @@ def gram_deficient(G, N: int, eps=None):
     **Returns:** (p,) booleans.
     """
     S, Vt, norms = _gram_svd(G)
-    return _identifiable(S, Vt, norms, N, norms.shape[0], eps, rank_from_gram=True)[1]
+    p = norms.shape[0]
+    eps = np.finfo(np.float64).eps if eps is None else float(eps)
+    return _identifiable(S, Vt, norms, p, max(_floor(N, p, eps), np.sqrt(eps)))[1]
 
 
-def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, eps, *, rank_from_gram, n_samples=None):
-    """The covariance from the scaled J's singular values `S` and right vectors `Vt`; `N` sets
-    the rank test's floor and `n_samples` (default `N`) counts the samples."""
+def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, rel):
+    """The covariance from the scaled J's singular values `S` and right vectors `Vt` of `N`
+    samples, dropping those below `rel` times the largest."""
     d = np.where(norms > 0, norms, 1.0)
-    rank, deficient = _identifiable(S, Vt, norms, N, p, eps, rank_from_gram=rank_from_gram)
-    N = N if n_samples is None else n_samples
+    rank, deficient = _identifiable(S, Vt, norms, p, rel)
     V = Vt[:rank].T
     bread = (V / S[:rank] ** 2) @ V.T / np.outer(d, d)  # (JᵀJ)⁺ on the identifiable subspace
     dof = N - p

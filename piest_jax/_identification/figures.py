@@ -83,8 +83,9 @@ def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
     uu, yu, mu = u[used], y[used], ym[used]
     drawn, gaps = loop_stretches(uu.shape[0])
     part = "" if drawn.size == uu.size else f" ({STRETCHES} stretches of {drawn.size // STRETCHES})"
-    a1.plot(_broken(uu[drawn], gaps), _broken(yu[drawn], gaps), "k", lw=0.7, label="measured" + part)
-    a1.plot(_broken(uu[drawn], gaps), _broken(mu[drawn], gaps), "C1", lw=0.7, label="model")
+    ud = _broken(uu[drawn], gaps)
+    a1.plot(ud, _broken(yu[drawn], gaps), "k", lw=0.7, label="measured" + part)
+    a1.plot(ud, _broken(mu[drawn], gaps), "C1", lw=0.7, label="model")
     a1.set(xlabel="input u", ylabel="output y", title=f"{title}: loop")
     a1.legend(fontsize=8, loc="upper left")
     if band is not None:
@@ -101,12 +102,12 @@ def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
     if mask is not None and not np.all(np.asarray(mask)):
         a2.axvspan(t[0], t[np.argmax(used)], color="0.85", label="not fitted")
         # Scaled to the fitted samples: a transient left out would otherwise flatten the rest.
-        e = (y - ym)[used]
-        pad = 0.1 * max(np.ptp(e), 1e-12)
-        a2.set_ylim(e.min() - pad, e.max() + pad)
+        eu = e[used]
+        pad = 0.1 * max(np.ptp(eu), 1e-12)
+        a2.set_ylim(eu.min() - pad, eu.max() + pad)
     if band is not None or mask is not None and not np.all(np.asarray(mask)):
         a2.legend(fontsize=8, loc="upper right")
-    rmse = float(np.sqrt(np.mean((ym[used] - y[used]) ** 2)))
+    rmse = float(np.sqrt(np.mean(e[used] ** 2)))
     a2.set(xlabel="time", ylabel="y - model", title=f"residual, RMSE {rmse:.4g}")
     fig.tight_layout()
     return fig

@@ -111,6 +111,23 @@ def selection_stretch(used: np.ndarray) -> int:
     return min(T, first + SELECT_SAMPLES)
 
 
+def holdout_split(used: np.ndarray, holdout: float):
+    """The stretch the held-out search runs on and its split (see the module notes).
+
+    **Arguments:** `used` (T,), 1 on the samples a fit uses; `holdout`, the held-out fraction.
+
+    **Returns:** `(S, split, test)`: the stretch's length (`selection_stretch`), 1 on its
+    fitted part and 0 on its held-out block (S,), and the used samples of that block (S,) bool.
+    Raises `ValueError` when the block has no used sample.
+    """
+    S = selection_stretch(used)
+    split = holdout_mask(S, holdout)
+    test = (split == 0) & (used[:S] > 0)
+    if not test.any():
+        raise ValueError("the held-out block has no used samples (all masked out)")
+    return S, split, test
+
+
 def select_plays(
     u,
     y,
@@ -166,17 +183,12 @@ def select_plays(
     used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
     if used.shape != (T,):
         raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
-    S = selection_stretch(used) if criterion == "holdout" else T
+    S, split, test = holdout_split(used, holdout) if criterion == "holdout" else (T, None, None)
 
     def fit_n(n, stretch=T, **kw):
         return fit_pi(u[:stretch], y[:stretch], n, pad_plays=padded_plays(n, largest, stretch), **kw,
                       **fit_kwargs)
 
-    if criterion == "holdout":
-        split = holdout_mask(S, holdout)
-        test = (split == 0) & (used[:S] > 0)
-        if not test.any():
-            raise ValueError("the held-out block has no used samples (all masked out)")
     n_used = int(np.sum(used > 0))
     since_best = 0
     rejected: set = set()

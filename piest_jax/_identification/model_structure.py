@@ -20,7 +20,7 @@ compromise that two lags resolve). The play count is not searched again with the
 cost, and a creep rarely makes plays that improved the held-out error useless. Every candidate
 is padded to the largest play and lag counts on records of up to `SHARED_UP_TO` samples, so that
 all share one compilation. On a long record the candidates are fitted and scored on its first
-stretch, as in [`select_plays`][] (`selection_stretch`), and the chosen model on every sample.
+stretch, as in [`select_plays`][] (`holdout_split`), and the chosen model on every sample.
 """
 
 import dataclasses
@@ -30,7 +30,7 @@ import numpy as np
 from .. import _checks
 from .._progress import progress
 from .fit import PIFit, fit_pi
-from .model_size import HOLDOUT, SHARED_UP_TO, holdout_mask, selection_stretch
+from .model_size import HOLDOUT, SHARED_UP_TO, holdout_split
 
 LAG_CANDIDATES = (0, 1, 2, 3)
 
@@ -105,11 +105,7 @@ def select_model(
     used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
     if used.shape != (T,):
         raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
-    S = selection_stretch(used)
-    split = holdout_mask(S, holdout)
-    test = (split == 0) & (used[:S] > 0)
-    if not test.any():
-        raise ValueError("the held-out block has no used samples (all masked out)")
+    S, split, test = holdout_split(used, holdout)
     shared = S <= SHARED_UP_TO
     pad = dict(pad_plays=max(plays), pad_lags=max(lags)) if shared else {}
     yn = np.asarray(y[:S])
@@ -122,7 +118,7 @@ def select_model(
     bar = progress(None, desc="models", quiet=quiet)
 
     def fit_one(n, k, m, stretch=T):
-        kw = dict(pad) if shared and stretch == S else dict(pad_plays=None, pad_lags=None)
+        kw = dict(pad) if shared else dict(pad_plays=None, pad_lags=None)
         return fit_pi(u[:stretch], y[:stretch], n, n_lags=k, dt=dt, mask=m, **kw, **fit_kwargs)
 
     def score(n, k):

@@ -111,7 +111,7 @@ class PIOperator(AbstractHysteresisOperator):
         u = self._input(u)
         method = resolved(self.method)
         if method == "associative":
-            return self.regressor(u) @ self.weights
+            return _bank(u, self.thresholds, self.initial_states, method) @ self.weights
         if method == "kernel":
             from . import kernel as _kernel
 
