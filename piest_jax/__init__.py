@@ -67,6 +67,10 @@ _EXPORTS = {
     "event_rows": ("._excitation.exact_condition", "event_rows"),
     "exact_condition": ("._excitation.exact_condition", "exact_condition"),
     "pe_margin": ("._excitation.exact_condition", "pe_margin"),
+    "InputDesign": ("._excitation.design", "InputDesign"),
+    "design_input": ("._excitation.design", "design_input"),
+    "excitation_report": ("._excitation.design_compare", "excitation_report"),
+    "excitation_figure": ("._excitation.design_compare", "excitation_figure"),
     "draw_statistics": ("._excitation.draw_metrics", "draw_statistics"),
     "summarise": ("._excitation.map_report", "summarise"),
     "MapSettings": ("._excitation.map_settings", "MapSettings"),
@@ -191,6 +195,10 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._estimation.rls import ContinuousRLS as ContinuousRLS
     from ._estimation.rls import ForgettingRLS as ForgettingRLS
     from ._excitation.condition import sharper_condition as sharper_condition
+    from ._excitation.design import InputDesign as InputDesign
+    from ._excitation.design import design_input as design_input
+    from ._excitation.design_compare import excitation_figure as excitation_figure
+    from ._excitation.design_compare import excitation_report as excitation_report
     from ._excitation.draw_metrics import draw_statistics as draw_statistics
     from ._excitation.exact_condition import EventRows as EventRows
     from ._excitation.exact_condition import ExactCondition as ExactCondition

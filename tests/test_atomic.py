@@ -359,6 +359,7 @@ def _command_argv(name, data, model):
         "simulate": ["simulate", "--input", "csv", "--csv", str(data)],
         "reproduce": ["reproduce", "fig5"],
         "montecarlo": ["montecarlo", "--inputs", "2", "--samples", "100"],
+        "excite": ["excite", "--thresholds", "0,1", "--samples", "100"],
         "fit": ["fit", str(data), "--plays", "2"],
         "compensate": ["compensate", str(model), str(data)],
     }.get(name, [name, str(data)])

@@ -148,3 +148,22 @@ def test_cli_compensate_bad_input(tmp_path, capsys):
     assert main(["compensate", str(tmp_path / "huge.json"), *args[1:], "--column", "z"]) == 2
     err = capsys.readouterr().err
     assert "out of the range of float64" in err and "NaN" not in err
+
+
+def test_feedforward_with_a_creep_stronger_than_the_identity_play():
+    """A creep that relaxes against the input by more than the identity play follows it (w_1 +
+    Σ c_k < 0, as `piest fit` finds on the Aye record) leaves the static map non-monotone, so the
+    rest input is found on its pieces; the model driven by the feedforward from rest tracks."""
+    dt = 5e-3
+    r = np.array([0.0, 0.3, 0.6])
+    op = pj.PIOperator(r, np.array([0.5, 0.8, 0.7]), np.full(3, 1.0))
+    creep = pj.Creep([0.05, 8.0], [4.0, -5.0], dt)  # present share 4(1 - e^-0.1) > 0, steady -1
+    model = pj.HysteresisModel(op, creep, offset=0.2)
+    t = np.arange(3000) * dt
+    u = 1.0 + 0.8 * np.sin(2 * np.pi * 0.7 * t)
+    target = np.asarray(model(u))
+    ff = np.asarray(pj.feedforward(model, target))
+    np.testing.assert_allclose(np.asarray(model(ff)), target, atol=1e-9)
+    # the rest input reproduces the first target with the lags at rest there, by a plain loop
+    x = np.clip(op.initial_states, ff[0] - r, ff[0] + r)
+    assert float(np.dot(op.weights, x)) - 1.0 * ff[0] + 0.2 == pytest.approx(target[0], abs=1e-9)

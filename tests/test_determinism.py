@@ -169,6 +169,14 @@ def test_montecarlo_twice(tmp_path, capsys):
     assert rep["seed"] == 11 and len(rep["draws"]["rho"]) == 6
 
 
+def test_excite_twice(tmp_path, capsys):
+    argv = ["excite", "--thresholds", "0,1,2", "--samples", "600", "--amplitude", "3"]
+    a, b = _twice(tmp_path, capsys, argv)
+    _assert_identical(a, b)
+    rep = json.loads((a / "excite.json").read_text())
+    assert rep["samples"] == 600 and rep["design"]["margin"] > 0
+
+
 def test_every_command_is_run_twice():
     from piest_jax._cli import COMMANDS
 

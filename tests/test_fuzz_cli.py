@@ -27,6 +27,7 @@ from hypothesis import strategies as st
 
 from piest_jax._cli import COMMANDS, build_parser, main
 from piest_jax._cli import compensate as compensate_cmd
+from piest_jax._cli import excite as excite_cmd
 from piest_jax._cli import fit as fit_cmd
 from piest_jax._cli import fit_saturating as fit_saturating_cmd
 from piest_jax._cli import montecarlo as montecarlo_cmd
@@ -44,7 +45,7 @@ def _subparsers():
 
 
 # How each command takes one data file (and the other options it needs to get to reading it).
-# montecarlo and reproduce read no files; a new command must be added to one of the two lists.
+# montecarlo, reproduce and excite read no files; a new command must be added to one of the two lists.
 DATA_ARGV = {
     "simulate": lambda f, model: ["--input", "csv", "--csv", f],
     "fit": lambda f, model: [f, "--plays", "2"],
@@ -52,7 +53,7 @@ DATA_ARGV = {
     "compensate": lambda f, model: [model, f],
     "estimate": lambda f, model: [f],
 }
-NO_DATA = ["montecarlo", "reproduce"]
+NO_DATA = ["montecarlo", "reproduce", "excite"]
 DATA_COMMANDS = list(DATA_ARGV)
 
 # compensate reads the desired output (columns t and desired, else y) with `load_columns`: a
@@ -373,6 +374,7 @@ _STUBS = {
     "montecarlo": [(montecarlo_cmd, "pe_map")],
     "reproduce": [(reproduce_cmd, "reproduce")],
     "estimate": [(_online, "estimate_record")],
+    "excite": [(excite_cmd, "design_input")],
 }
 
 _JUNK = ["nan", "inf", "-inf", "-1", "0", "1e308", "1e-320", "", "abc", "1,,2", "3", "0,1", "--", "2.5"]

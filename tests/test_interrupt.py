@@ -28,7 +28,15 @@ _JOBS = {
                    ["montecarlo", "--inputs", "4000", "--samples", "20000"]),
     "reproduce": ("piest_jax._cli.reproduce", "reproduce", ["reproduce", "all"]),
     "estimate": ("piest_jax._estimation.online", "estimate_record", ["estimate", "{rec}", "--plays", "400"]),
+    "excite": ("piest_jax._cli.excite", "design_input",
+               ["excite", "--thresholds", "0,0.5,1,1.5,2", "--amplitude", "3", "--samples", "3000000"]),
 }
+
+
+def test_every_command_has_a_job():
+    from piest_jax._cli import COMMANDS
+
+    assert {m.NAME for m in COMMANDS} == set(_JOBS)
 
 _WRAPPER = textwrap.dedent(
     """

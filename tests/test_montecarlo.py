@@ -62,9 +62,10 @@ def _reference(u, r, x0, w, s):
         )
         holds.append(n <= min(len(reps), steps) + 1 and not zero and not triple)
     est = pj.ContinuousRLS(s.P0, s.dt)
-    Wk = pj.estimate(est, H[: s.rls_samples], H[: s.rls_samples] @ w).weights[-1]
+    W = np.asarray(pj.estimate(est, H[: s.rls_samples], H[: s.rls_samples] @ w).weights)
+    Wk = W[-1]
     lo, hi = np.array(lo), np.array(hi)
-    return dict(
+    return _convergence_reference(H, u, r, w, W, s) | dict(
         rho=min(ranges) / (2 * r[-1]),
         c1=lo.min(),
         c1_normalised=np.min(lo / hi),
@@ -73,6 +74,42 @@ def _reference(u, r, x0, w, s):
         sharper=all(holds),
         weight_error=np.linalg.norm(np.asarray(Wk) - w) / np.linalg.norm(w),
         scale=hi.max(),
+    )
+
+
+def _first_for_good(values, checks):
+    below = np.asarray(values) <= 0.01
+    later = [i for i in range(len(checks)) if below[i:].all()]
+    return checks[later[0]] if later else -1
+
+
+def _convergence_reference(H, u, r, w, W, s):
+    """Times to 1 % weight error, measured by the paper's RLS and bounded by the margins."""
+    checks = [min(k, s.rls_samples) for k in range(s.stride, s.rls_samples + s.stride, s.stride)]
+    # W[k] is the estimate after sample k, i.e. after k + 1 samples
+    err = [np.linalg.norm(W[k - 1] - w) / np.linalg.norm(w) for k in checks]
+    A = np.zeros((len(r), len(r)))
+    worst, k0 = [], 0
+    for k in checks:
+        for i in range(k0, k):
+            A += s.dt / (1 + H[i] @ H[i]) ** 2 * np.outer(H[i], H[i])
+        k0 = k
+        worst.append(1 / (1 + s.P0 * max(np.linalg.eigvalsh(A)[0], 0.0)))
+    # the bound, from pe_margin on disjoint windows
+    margins = np.asarray(pj.pe_margin(H, u, r, s.window, stride=s.stride))
+    step = -(-s.window // s.stride)
+    total, guaranteed = 1.0, -1
+    for j, a in enumerate(range(0, s.rls_samples - s.window + 1, step * s.stride)):
+        peak = max(H[i] @ H[i] for i in range(a, a + s.window))
+        total += s.P0 * s.window * s.dt / (1 + peak) ** 2 * margins[j * step]
+        if guaranteed < 0 and total >= 100:
+            guaranteed = min(-(-(a + s.window) // s.stride) * s.stride, s.rls_samples)
+    return dict(
+        samples_to_1pct=_first_for_good(err, checks),
+        worst_samples_to_1pct=_first_for_good(worst, checks),
+        worst_error=worst[-1],
+        guaranteed_samples_to_1pct=guaranteed,
+        guaranteed_error=1 / total,
     )
 
 
@@ -99,6 +136,10 @@ def test_draws_match_numpy_reference(pemap, settings, i):
     assert pemap["min_excited"][i] == ref["min_excited"]
     assert pemap["sharper"][i] == ref["sharper"]
     np.testing.assert_allclose(pemap["weight_error"][i], ref["weight_error"], rtol=1e-5, atol=1e-9)
+    for k in ("samples_to_1pct", "worst_samples_to_1pct", "guaranteed_samples_to_1pct"):
+        assert pemap[k][i] == ref[k], k
+    np.testing.assert_allclose(pemap["worst_error"][i], ref["worst_error"], rtol=1e-8)
+    np.testing.assert_allclose(pemap["guaranteed_error"][i], ref["guaranteed_error"], rtol=1e-8)
 
 
 def test_map_counts(pemap, settings):
@@ -118,6 +159,12 @@ def test_map_counts(pemap, settings):
     assert s["margin"]["violations"] == 0
     assert np.all((pemap["margin"] > 0) == pemap["exact"])
     assert np.all(pemap["margin"] <= pemap["c1"] + s["tolerance"] * pemap["gram_scale"])
+    # measured error <= its worst case over weights <= the margins' guarantee, and the times too
+    conv = s["convergence"]
+    assert conv["violations"] == 0
+    assert 0 < conv["guaranteed_1pct"] <= conv["worst_case_reached_1pct"] <= conv["reached_1pct"]
+    g, w = pemap["guaranteed_samples_to_1pct"], pemap["worst_samples_to_1pct"]
+    assert np.all(w[g > 0] <= g[g > 0]) and np.all(w[g > 0] > 0)
 
 
 CASE = dict(n_samples=2001, n_plays=3, window=300, stride=10, dt=2e-3)

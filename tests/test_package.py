@@ -187,7 +187,10 @@ def _figure_calls():
     draws = {"rho": rng.uniform(0.1, 3, 20), "c1_normalised": rng.uniform(1e-12, 1e-3, 20),
              "family": np.repeat(list(settings.families), 10), "exact": rng.uniform(size=20) > 0.3,
              "sharper": rng.uniform(size=20) > 0.5, "weight_error": rng.uniform(1e-9, 1, 20),
-             "margin": rng.uniform(1e-9, 1e-4, 20), "c1": rng.uniform(1e-9, 1e-3, 20)}
+             "margin": rng.uniform(1e-9, 1e-4, 20), "c1": rng.uniform(1e-9, 1e-3, 20),
+             "worst_error": rng.uniform(1e-6, 1, 20), "guaranteed_error": rng.uniform(1e-4, 1, 20),
+             "samples_to_1pct": rng.integers(-1, 100, 20),
+             "guaranteed_samples_to_1pct": rng.integers(-1, 100, 20)}
     return {
         "fit_figure": lambda: pj.fit_figure(rec, 0.9 * y, title="fit", mask=mask),
         "compensation_figure": lambda: pj.compensation_figure(t, y, u),

@@ -25,6 +25,7 @@ HELP = {
     "fit": "fit thresholds, weights and offset of a PI model to a measured (t, u, y) record",
     "compensate": "compute the feedforward input that makes a fitted PI model follow a desired output",
     "estimate": "run an online weight estimator (the paper's RLS, RLS with forgetting, gradient) on a record",
+    "excite": "design an input that excites given plays with the largest guaranteed PE margin",
 }
 
 

@@ -16,16 +16,19 @@ DESCRIPTION = """\
 Draw N random cases (input family and parameters, thresholds, initial states, weights), one PRNG
 key each, and for every draw compute the Assumption 1 ratio rho (smallest window range of u over
 2 r_max), the PE level c1 (absolute, and normalised as lambda_min / lambda_max of the worst
-window), which plays move in each window, the exact condition and the lower bound on c1 from the input's swings (see
-docs/excitation_condition.md), the earlier sharper condition, and the RLS weight error after
-the whole record. The families take turns: """ + ", ".join(DEFAULT_FAMILIES) + """ by default;
+window), which plays move in each window, the exact condition and the lower bound on c1 from
+the input's swings (see docs/excitation_condition.md), the earlier sharper condition, the RLS
+weight error after the whole record, when it falls below 1 % for good, and when the lower bound
+guarantees that it has. The families take turns: """ + ", ".join(DEFAULT_FAMILIES) + """ by default;
 """ + ", ".join(FAMILIES[len(DEFAULT_FAMILIES):]) + """ (long monotone stretches, reversals
 exactly 2 r_j apart with holds, loops just below 2 r_max) are adversarial cases asked for by name.
 Writes
   DIR/pe_map.png   c1 against rho by family (rho = 1 marked), the PE fraction against rho,
-                   the weight error against c1, and c1 against its margin
+                   the weight error against c1, c1 against its margin, and the time to 1 %
+                   weight error against the time its margin guarantees
   DIR/pe_map.json  the counts (theorem_violations, pe_fraction_below_assumption, the exact
-                   condition's violations), the tolerance, seconds, settings and every draw
+                   condition's, the margin's and the convergence guarantee's violations), the
+                   tolerance, seconds, settings and every draw
 The batch is sharded over all JAX devices and run in chunks of --chunk draws.
 
 example:  piest montecarlo --inputs 2000 --samples 5000 --seed 0 --out pe-map"""
@@ -117,7 +120,8 @@ def run(args) -> int:
         k: res[k]
         for k in (
             "family", "rho", "c1", "c1_normalised", "min_excited", "redundant", "sharper", "exact",
-            "exact_level", "margin",
+            "exact_level", "margin", "samples_to_1pct", "worst_samples_to_1pct",
+            "guaranteed_samples_to_1pct", "worst_error", "guaranteed_error",
         )
     } | {"weight_error": res["weight_error"], "thresholds": res["thresholds"]}
     written = [_io.save_figure(pe_map_figure(res, settings), out / "pe_map.png", dpi=110)]

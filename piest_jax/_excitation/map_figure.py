@@ -8,13 +8,14 @@ from .map_settings import numerical_tolerance
 
 def pe_map_figure(result: dict, settings):
     """The PE map: the PE level against the Assumption 1 ratio by family, the fraction of
-    persistently exciting draws against that ratio, the weight error against the PE level, and
-    the PE level against its margin.
+    persistently exciting draws against that ratio, the weight error against the PE level, the
+    PE level against its margin, and the RLS weight error after the record against the bound
+    the margins guarantee.
 
     **Arguments:** `result`, from [`pe_map`][]; `settings`, the [`MapSettings`][] it ran with
     (their `dtype` sets the tolerance below which a PE level is rounding).
 
-    **Returns:** a `matplotlib.figure.Figure` (four panels), made without pyplot.
+    **Returns:** a `matplotlib.figure.Figure` (five panels), made without pyplot.
     """
     from matplotlib.figure import Figure
 
@@ -24,8 +25,8 @@ def pe_map_figure(result: dict, settings):
     c1n = res["c1_normalised"]
     pe = c1n > tol
     floor = tol / 10
-    fig = Figure(figsize=(20, 4.5))
-    a1, a2, a3, a4 = fig.subplots(1, 4)
+    fig = Figure(figsize=(25, 4.5))
+    a1, a2, a3, a4, a5 = fig.subplots(1, 5)
     for f in settings.families:
         m = res["family"] == f
         a1.scatter(rho[m], np.maximum(c1n[m], floor), s=6, alpha=0.6, label=FAMILIES[f])
@@ -69,5 +70,18 @@ def pe_map_figure(result: dict, settings):
         a4.legend(fontsize=8)
     a4.set(xscale="log", yscale="log", xlabel="margin (lower bound from the input)",
            ylabel="PE level c1", title="c1 against its guaranteed margin")
+    # The weight error after the record against the margins' guarantee: measured <= worst case
+    # over weight vectors <= the guarantee, for every draw.
+    bound = res["guaranteed_error"]
+    a5.scatter(bound, np.maximum(res["worst_error"], 1e-18), s=6, alpha=0.5,
+               label="worst case over W: 1/(1 + P0 λmin(A))")
+    a5.scatter(bound, err, s=4, alpha=0.4, c="C3", label="this draw's W")
+    lo = min(bound.min(), 1e-6)
+    a5.plot([lo, 1], [lo, 1], "k--", lw=1, label="= guarantee")
+    a5.set(xscale="log", yscale="log", xlabel="guaranteed error bound from the margins",
+           ylabel="RLS weight error after the record",
+           title=f"convergence: {int((res['guaranteed_samples_to_1pct'] > 0).sum())} draws "
+           f"guaranteed 1 %, {int((res['samples_to_1pct'] > 0).sum())} reach it")
+    a5.legend(fontsize=7)
     fig.tight_layout()
     return fig

@@ -63,6 +63,15 @@ def summarise(result: dict, settings: MapSettings) -> dict:
     # The bound holds up to the rounding of c1 itself, a few eps times the largest eigenvalue.
     violated = margin > c1 + tol * scale
     ratio = c1[sharper & (margin > 0)] / margin[sharper & (margin > 0)]
+    measured = np.asarray(result["samples_to_1pct"])
+    worst = np.asarray(result["worst_samples_to_1pct"])
+    guaranteed = np.asarray(result["guaranteed_samples_to_1pct"])
+    both = (worst > 0) & (guaranteed > 0)
+    slack = guaranteed[both] / worst[both]
+    err, worst_err = np.asarray(result["weight_error"]), np.asarray(result["worst_error"])
+    bound = np.asarray(result["guaranteed_error"])
+    # Each inequality up to the rounding of the errors themselves (relative, a few eps).
+    eps = 1e3 * np.finfo(np.asarray(bound).dtype).eps
     return {
         "tolerance": tol,
         "tolerance_meaning": "a draw is PE when min over windows of lambda_min/lambda_max > tolerance",
@@ -81,6 +90,27 @@ def summarise(result: dict, settings: MapSettings) -> dict:
             "c1_over_margin_quantiles": (
                 np.quantile(ratio, [0.0, 0.1, 0.5, 0.9, 1.0]).tolist() if ratio.size else []
             ),
+        },
+        "convergence": {
+            "statement": "the RLS weight error after rls_samples is at most its worst case over "
+            "weight vectors, 1/(1 + P0 lambda_min(A)), which is at most the margins' bound "
+            "1/(1 + P0 L sum_j c_j margin_j) over disjoint windows j, c_j = dt/(1 + max |h|^2 in "
+            "window j)^2; the *_samples_to_1pct times (read every stride samples; -1: not within "
+            "rls_samples) are when each falls below 1 % for good",
+            "reached_1pct": int((measured > 0).sum()),
+            "worst_case_reached_1pct": int((worst > 0).sum()),
+            "guaranteed_1pct": int((guaranteed > 0).sum()),
+            "violations": int(
+                (worst_err > bound * (1 + eps)).sum()
+                + (err > worst_err * (1 + eps) + eps).sum()
+                + ((guaranteed > 0) & ((worst < 0) | (worst > guaranteed))).sum()
+            ),
+            "guaranteed_over_worst_time_quantiles": (
+                np.quantile(slack, [0.0, 0.1, 0.5, 0.9, 1.0]).tolist() if slack.size else []
+            ),
+            "bound_over_worst_error_quantiles": np.quantile(
+                bound / np.maximum(worst_err, np.finfo(float).tiny), [0.0, 0.1, 0.5, 0.9, 1.0]
+            ).tolist(),
         },
         "sharper_condition": {
             "statement": SHARPER_STATEMENT,

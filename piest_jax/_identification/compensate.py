@@ -106,6 +106,46 @@ def _model(model, offset):
     return op, jnp.asarray(c, op.weights.dtype), creep
 
 
+def _rest_input(op: PIOperator, gain: float, target):
+    """The input u_0 at which the model at rest gives `target`: op's first output + gain·u_0.
+
+    Used when the lags' steady gain makes the model's static map non-monotone (a creep that
+    relaxes against the input more than the identity play follows it), so the closed-form
+    inverse does not apply: the map is piecewise linear with corners at x_j ± r_j, every piece's
+    crossing is a solution, and the one nearest the identity play's state (the last input) is
+    taken. Raises `ValueError` when none reaches `target`.
+    """
+    r = np.asarray(op.thresholds, float)
+    w = np.asarray(op.weights, float)
+    x = np.asarray(op.initial_states, float)
+    v = float(target)
+
+    def f(u):
+        return float(np.dot(w, np.clip(x, u - r, u + r))) + gain * u
+
+    corners = np.unique(np.concatenate([x - r, x + r]))
+    span = 1.0 + float(np.ptp(corners)) + abs(v)
+    points = np.concatenate([[corners[0] - span], corners, [corners[-1] + span]])
+    values = np.array([f(u) for u in points])
+    slopes = np.diff(values) / np.diff(points)
+    found = []
+    last = len(slopes) - 1
+    for i, k in enumerate(slopes):
+        # The outer pieces extend without end: only their inner corner bounds them.
+        if k != 0:
+            u = points[i] + (v - values[i]) / k
+            if (i == 0 or u >= points[i]) and (i == last or u <= points[i + 1]):
+                found.append(u)
+        elif values[i] == v:
+            found.append(points[i])
+    if not found:
+        raise ValueError(
+            f"the model at rest cannot reach the first desired output {v:.6g} (its creep's steady "
+            "gain makes its static map non-monotone); give the lags' `creep_states`"
+        )
+    return min(found, key=lambda u: abs(u - x[0]))
+
+
 def _creep_inverse(op: PIOperator, creep, v, creep_states=None):
     """The input u with op[u] + creep[u] = v (offset already removed), sample by sample."""
     a = creep.decays.astype(v.dtype)
@@ -121,9 +161,13 @@ def _creep_inverse(op: PIOperator, creep, v, creep_states=None):
     if z0 is None:
         # At rest at the first input u_0 (as the forward model starts): then op[u](0) + Σ c u_0 =
         # v[0], so u_0 is the first sample of the inverse with the lags' whole weight folded in.
-        r0, w0, x0 = inverse_parameters(op.thresholds, op.weights.at[0].add(jnp.sum(cw)),
-                                        op.initial_states)
-        z0 = jnp.broadcast_to(jnp.dot(w0, play_step(x0, v[0], r0)), a.shape)
+        static = op.weights.at[0].add(jnp.sum(cw))
+        if _checks.is_concrete(static) and np.any(np.cumsum(np.asarray(static)) <= 0):
+            z0 = _rest_input(op, float(jnp.sum(cw)), v[0])
+        else:
+            r0, w0, x0 = inverse_parameters(op.thresholds, static, op.initial_states)
+            z0 = jnp.dot(w0, play_step(x0, v[0], r0))
+        z0 = jnp.broadcast_to(z0, a.shape)
 
     def step(carry, vt):
         x, z = carry
