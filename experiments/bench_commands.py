@@ -1,15 +1,19 @@
-"""Time and peak memory of the whole `piest fit` / `piest diagnose` command, defaults, across lengths.
+"""Time and peak memory of the whole `piest fit` / `diagnose` / `estimate` command, defaults, across lengths.
 
     python experiments/bench_commands.py fit [--lengths 1e4,1e5,1e6,1e7]
         ->  experiments/results/bench_fit_command.json
     python experiments/bench_commands.py diagnose [--lengths 1e4,1e5,1e6]
         ->  experiments/results/bench_diagnose_command.json
+    python experiments/bench_commands.py estimate [--lengths 1e4,1e5,1e6,1e7]
+        ->  experiments/results/bench_estimate_command.json
 
 The record is `bench_long_fit.py`'s (a plain four-play PI at 10 kHz, white noise σ = 0.01),
 written to a CSV; the command then runs as a user runs it, in its own process (`piest fit
 rec.csv`: the CSV read and checked, the structure chosen by held-out error, on the first 2^18
 samples of a longer record, the chosen model fitted on every sample with its covariance, fit.json,
-fit.md and fit.png written; `piest diagnose rec.csv`: the search, the refinement, the report).
+fit.md and fit.png written; `piest diagnose rec.csv`: the search, the refinement, the report;
+`piest estimate rec.csv`: the paper's RLS with 20 uniform plays and an offset, streamed in
+chunks, estimate.json and estimate.png written).
 Wall time and the command process's peak resident memory (`resource.getrusage(RUSAGE_CHILDREN)`,
 lengths from the shortest up, so each figure is the largest so far), and what the command
 concluded: the model chosen and its worst threshold error, or the effects named (none is right).
@@ -45,6 +49,10 @@ def one(command: str, T: int, folder: Path) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"piest {command} on {T} samples: exit {proc.returncode}: {proc.stderr.strip()[-2000:]}")
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    if command == "estimate":
+        rep = json.loads((out / "estimate.json").read_text())
+        return dict(n_samples=T, seconds=secs, seconds_per_sample=secs / T, peak_rss_mb=peak,
+                    final_rmse=rep["final_rmse"], all_exciting=rep["pe"]["all_exciting"])
     if command == "diagnose":
         rep = json.loads((out / "report.json").read_text())
         return dict(n_samples=T, seconds=secs, seconds_per_sample=secs / T, peak_rss_mb=peak,
@@ -63,7 +71,7 @@ def one(command: str, T: int, folder: Path) -> dict:
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("command", choices=("fit", "diagnose"))
+    p.add_argument("command", choices=("fit", "diagnose", "estimate"))
     p.add_argument("--lengths", default="1e4,1e5,1e6,1e7")
     p.add_argument("--out", help="default: experiments/results/bench_<command>_command.json")
     args = p.parse_args(argv)
