@@ -14,16 +14,14 @@ samples of a longer record, the chosen model fitted on every sample with its cov
 fit.md and fit.png written; `piest diagnose rec.csv`: the search, the refinement, the report;
 `piest estimate rec.csv`: the paper's RLS with 20 uniform plays and an offset, streamed in
 chunks, estimate.json and estimate.png written).
-Wall time and the command process's peak resident memory (`resource.getrusage(RUSAGE_CHILDREN)`,
-lengths from the shortest up, so each figure is the largest so far), and what the command
-concluded: the model chosen and its worst threshold error, or the effects named (none is right).
+Wall time and the command process's peak resident memory (its `VmHWM`, polled; Linux), and what
+the command concluded: the model chosen and its worst threshold error, or the effects named (none is right).
 """
 
 import argparse
 import json
 import os
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
@@ -36,19 +34,45 @@ from bench_long_fit import R_TRUE, record
 OUT = Path(__file__).parent / "results"
 
 
+def _high_water_mb(pid: int) -> float | None:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmHWM"))
+    except (OSError, StopIteration):
+        return None
+
+
+def _measured(argv):
+    """Exit code, wall time, peak resident memory (MB) and stderr of a command.
+
+    The peak is the command's own high-water mark (`VmHWM`), read every 20 ms until it exits. The
+    children's `ru_maxrss` would also count the memory of this process at the fork (a forked
+    child holds the parent's pages until it runs the command): with a long record generated
+    here, hundreds of MB that the command never used.
+    """
+    t0 = time.perf_counter()
+    with tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, text=True)
+        peak = 0.0
+        while proc.poll() is None:
+            peak = max(peak, _high_water_mb(proc.pid) or 0.0)
+            time.sleep(0.02)
+        secs = time.perf_counter() - t0
+        err.seek(0)
+        return proc.returncode, secs, peak, err.read()
+
+
 def one(command: str, T: int, folder: Path) -> dict:
     t, u, y = record(T)
     csv = folder / f"rec_{T}.csv"
     np.savetxt(csv, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="", fmt="%.10g")
+    del t, u, y
     out = folder / f"{command}_{T}"
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "piest_jax", command, str(csv), "--out", str(out), "--quiet"],
-                          capture_output=True, text=True)
-    secs = time.perf_counter() - t0
+    code, secs, peak, err = _measured([sys.executable, "-m", "piest_jax", command, str(csv), "--out", str(out),
+                                       "--quiet"])
     csv.unlink()
-    if proc.returncode != 0:
-        raise SystemExit(f"piest {command} on {T} samples: exit {proc.returncode}: {proc.stderr.strip()[-2000:]}")
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    if code != 0:
+        raise SystemExit(f"piest {command} on {T} samples: exit {code}: {err.strip()[-2000:]}")
     if command == "estimate":
         rep = json.loads((out / "estimate.json").read_text())
         return dict(n_samples=T, seconds=secs, seconds_per_sample=secs / T, peak_rss_mb=peak,

@@ -42,6 +42,8 @@ _EXPORTS = {
     "noise_covariance": ("._estimation.certificate", "noise_covariance"),
     "OnlineEstimate": ("._estimation.online", "OnlineEstimate"),
     "estimate_record": ("._estimation.online", "estimate_record"),
+    "RecordStream": ("._data.stream", "RecordStream"),
+    "open_record_stream": ("._data.stream", "open_record_stream"),
     "settled_start": ("._estimation.online", "settled_start"),
     "online_estimate_figure": ("._estimation.online_figure", "online_estimate_figure"),
     # excitation, input signals and the Monte Carlo map
@@ -171,6 +173,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._data.record import datasets as datasets
     from ._data.record import load_dataset as load_dataset
     from ._data.record import load_record as load_record
+    from ._data.stream import RecordStream as RecordStream
+    from ._data.stream import open_record_stream as open_record_stream
     from ._diagnosis.diagnose import diagnose as diagnose
     from ._diagnosis.diagnosis import Diagnosis as Diagnosis
     from ._diagnosis.diagnosis import DiagnosisValidation as DiagnosisValidation

@@ -11,6 +11,7 @@ from ._common import (
     add_output_options,
     add_record_options,
     float_list,
+    note,
     positive_float,
     positive_int,
     read_record,
@@ -23,7 +24,8 @@ Run an online estimator over DATA.csv (columns t, u, y) with a fixed play bank: 
 --thresholds, from a fitted model (--from-fit fit.json, its thresholds and initial states), or
 --plays uniform thresholds on [0, half the input's range) by default. The output offset is
 estimated as one more weight (--no-offset to leave it out). The record is streamed in chunks:
-memory does not grow with its length. Estimation starts once the input has visited both ends of
+memory does not grow with its length (a CSV over 32 MB of plain rows is read again in chunks for
+each pass, never whole). Estimation starts once the input has visited both ends of
 its range (--start auto), when the plays no longer depend on their unknown states before the
 record began; --start 0 or a time in seconds overrides that. Writes
   DIR/estimate.json  thresholds, initial_states (at the start), weights_final, offset_final,
@@ -100,8 +102,32 @@ def _thresholds(args, rec):
         if r.ndim != 1 or r.size < 1 or not np.all(np.isfinite(r)) or (x0 is not None and x0.shape != r.shape):
             raise CLIError(f"--from-fit {args.from_fit}: `thresholds` and `initial_states` do not match")
         return r, x0
-    half = 0.5 * float(np.ptp(rec.u))
+    lo, hi = (rec.u_min, rec.u_max) if isinstance(rec, _StreamRecord) else (np.min(rec.u), np.max(rec.u))
+    half = 0.5 * float(hi - lo)
     return np.arange(args.plays) * half / args.plays, None
+
+
+class _StreamRecord:
+    """What this command reads of a record, from a `RecordStream`."""
+
+    def __init__(self, stream):
+        self.stream, self.dt, self.n_samples = stream, stream.dt, stream.n_samples
+        self.t0, self.time_is_index = stream.t0, stream.time_is_index
+        self.u_min, self.u_max = stream.u_min, stream.u_max
+
+
+def _stream(args):
+    """The record as a stream when it is a large plain CSV (read again in chunks for each pass,
+    so memory does not grow with it), else None (read whole, as every command reads it)."""
+    from pathlib import Path
+
+    from .._data.record import STREAM_BYTES
+    from .._data.stream import open_record_stream
+
+    path = Path(args.data)
+    if args.resample or args.segment is not None or not path.is_file() or path.stat().st_size <= STREAM_BYTES:
+        return None
+    return open_record_stream(path, columns=args.columns)
 
 
 def run(args) -> int:
@@ -124,7 +150,14 @@ def run(args) -> int:
         raise CLIError(f"--forgetting must be in (0, 1], got {args.forgetting}")
     start = _start(args.start)
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    rec = read_record(args.data, args)
+    stream = _stream(args)
+    if stream is not None:
+        if stream.time_is_index:
+            note(args, f"{args.data} has no time in seconds: t counts samples (step 1), so the times, "
+                 "time constants and rates in the results are in samples")
+        rec = _StreamRecord(stream)
+    else:
+        rec = read_record(args.data, args)
     r, x0 = _thresholds(args, rec)
     if args.estimator == "rls":
         est = pj.ContinuousRLS(args.P0, rec.dt, normalisation=args.normalisation)
@@ -135,7 +168,9 @@ def run(args) -> int:
     else:
         est = pj.NormalisedGradient(args.gain)
         settings = dict(gain=args.gain)
-    k0 = settled_start(rec.u) if start == "auto" else int(round((start - rec.t[0]) / rec.dt))
+    source = (rec.stream, None) if isinstance(rec, _StreamRecord) else (rec.u, rec.y)
+    t0 = rec.t0 if isinstance(rec, _StreamRecord) else float(rec.t[0])
+    k0 = settled_start(source[0]) if start == "auto" else int(round((start - t0) / rec.dt))
     if not 0 <= k0 <= rec.n_samples - 2:
         raise CLIError(f"--start {args.start} leaves fewer than 2 samples of the record")
     window = None if args.window is None else int(round(args.window / rec.dt))
@@ -144,12 +179,12 @@ def run(args) -> int:
     from .._estimation.online import DEFAULT_CHUNK
 
     m = len(r) + (not args.no_offset)
-    block = min(rec.n_samples, max(DEFAULT_CHUNK, window or (rec.n_samples - k0) // 10))
-    memory.require(memory.rls_bytes(m, rec.n_samples) + memory.bank_bytes(block, m),
+    block = min(rec.n_samples, DEFAULT_CHUNK)  # a chunk holds whole windows or part of one
+    held = 0 if isinstance(rec, _StreamRecord) else rec.n_samples  # samples held in memory
+    memory.require(memory.rls_bytes(m, held) + memory.bank_bytes(block, m),
                    f"{m} weights ({len(r)} plays) on {args.data}", "use fewer plays")
-    res = estimate_record(est, rec.u, rec.y, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset,
+    res = estimate_record(est, *source, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset,
                           window=window, start=k0)
-    t0 = float(rec.t[0])
     report = dict(
         data=str(args.data), estimator=args.estimator, settings=settings, offset_estimated=not args.no_offset,
         start_time=t0 + k0 * rec.dt, start_sample=k0, thresholds=res.thresholds, initial_states=res.initial_states,

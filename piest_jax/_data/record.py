@@ -11,6 +11,8 @@ from .columns import INDEX_NAMES, SEGMENT, base_name, column_names, to_number
 MIN_SAMPLES = 8
 _DELIMITERS = (",", ";", "\t")
 _HEADER_SEARCH_LINES = 200
+# What a refusal of the default columns adds.
+COLUMNS_HINT = "; or name the file's columns with columns= (CLI: --columns TIME,INPUT,OUTPUT)"
 
 
 class DataError(ValueError):
@@ -436,8 +438,7 @@ def load_record(
     if path.suffix.lower() == ".npz":
         return _load_npz(path, source, names, **opts)
     if names is None:
-        hint = "; or name the file's columns with columns= (CLI: --columns TIME,INPUT,OUTPUT)"
-        cols, rows, names = _read_csv(path, source, ("t", "u", "y"), hint, quasi=True)
+        cols, rows, names = _read_csv(path, source, ("t", "u", "y"), COLUMNS_HINT, quasi=True)
     else:
         cols, rows, _ = _read_csv(path, source, tuple(n for n in names if n is not None))
     return _chosen(cols, names, source, rows, **opts)

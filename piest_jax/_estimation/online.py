@@ -24,6 +24,7 @@ from jax import lax
 from jaxtyping import Array, Float
 
 from .. import _checks
+from .._data.stream import RecordStream
 from .._excitation.map_settings import numerical_tolerance
 from .._operators.play import play
 from .estimators import AbstractEstimator, check_estimator
@@ -78,8 +79,7 @@ def _regressor_chunk(u, r, x0, a, offset: bool):
     return H[-1], Hn
 
 
-@eqx.filter_jit
-def _run_chunk(estimator: AbstractEstimator, state, Hn, yn, info, valid, window: int, cert: bool):
+def _scan_chunk(estimator: AbstractEstimator, state, Hn, yn, valid):
     def body(state, hyv):
         h, yk, v = hyv
         new = estimator.step(state, h, yk)
@@ -87,7 +87,28 @@ def _run_chunk(estimator: AbstractEstimator, state, Hn, yn, info, valid, window:
         new = jax.tree.map(lambda a, b: jnp.where(v, a, b), new, state)
         return new, (estimator.weights(new), jnp.where(v, estimator.prediction_error(new), 0.0))
 
-    state, (w, e) = lax.scan(body, state, (Hn, yn, valid))
+    return lax.scan(body, state, (Hn, yn, valid))
+
+
+@eqx.filter_jit
+def _run_chunk_long(estimator: AbstractEstimator, state, Hn, yn, valid, boundary, cert: bool):
+    """A chunk shorter than a window: the Gram (and information) of its samples before and
+    after `boundary`, where the next window starts (at most one starts inside it)."""
+    state, (w, e) = _scan_chunk(estimator, state, Hn, yn, valid)
+    before = (jnp.arange(Hn.shape[0]) < boundary) & valid
+    after = ~before & valid
+    grams = [(Hn * m[:, None]).T @ Hn for m in (before, after)]
+    if cert:
+        c = jax.vmap(lambda h: sample_weight(h, estimator.dt, estimator.normalisation))(Hn)
+        infos = [(Hn * (c * m)[:, None]).T @ Hn for m in (before, after)]
+    else:
+        infos = [jnp.zeros_like(g) for g in grams]
+    return state, w, e, *grams, *infos
+
+
+@eqx.filter_jit
+def _run_chunk(estimator: AbstractEstimator, state, Hn, yn, info, valid, window: int, cert: bool):
+    state, (w, e) = _scan_chunk(estimator, state, Hn, yn, valid)
     n_win = Hn.shape[0] // window
     Hw = (Hn * valid[:, None])[: n_win * window].reshape(n_win, window, Hn.shape[1])
     gram = jnp.einsum("wti,wtj->wij", Hw, Hw) / window
@@ -105,16 +126,57 @@ def _run_chunk(estimator: AbstractEstimator, state, Hn, yn, info, valid, window:
     return state, w, e, eig[:n_win, 0], eig[:n_win, -1], info, eig[n_win:, 0]
 
 
+class _Arrays:
+    """A record in memory, with the few facts and the chunks that `RecordStream` provides."""
+
+    def __init__(self, u, y):
+        self.u, self.y = u, y
+        self.n_samples, self.u_first = u.shape[0], float(u[0])
+        self.u_min, self.u_max = float(u.min()), float(u.max())
+        self.y_peak = float(np.max(np.abs(y)))
+
+    def chunks(self, size: int):
+        for k in range(0, self.n_samples, size):
+            yield self.u[k : k + size], self.y[k : k + size]
+
+
 def _as_record(u, y, dt):
-    u = np.asarray(_checks.finite(_checks.signal(u, "u"), "u"))
-    y = np.asarray(_checks.finite(_checks.signal(y, "y"), "y"))
-    if u.shape != y.shape:
-        raise ValueError(f"`u` has {u.shape[0]} samples but `y` has {y.shape[0]}")
-    if u.shape[0] < 2:
-        raise ValueError(f"the record is too short: {u.shape[0]} samples")
+    if isinstance(u, RecordStream):
+        if y is not None:
+            raise ValueError("give `y` as None with a RecordStream: the stream holds both")
+        src = u
+    else:
+        u = np.asarray(_checks.finite(_checks.signal(u, "u"), "u"))
+        y = np.asarray(_checks.finite(_checks.signal(y, "y"), "y"))
+        if u.shape != y.shape:
+            raise ValueError(f"`u` has {u.shape[0]} samples but `y` has {y.shape[0]}")
+        src = _Arrays(u, y)
+    if src.n_samples < 2:
+        raise ValueError(f"the record is too short: {src.n_samples} samples")
     if not (math.isfinite(float(dt)) and float(dt) > 0):
         raise ValueError(f"`dt` must be positive and finite, got {dt}")
-    return u, y
+    return src
+
+
+def _blocks(src, first: int, stop: int, size: int):
+    """`(u, y)` blocks of `size` samples covering samples first, ..., stop − 1 of `src` (the last
+    block may be shorter), however `src` cuts its own chunks."""
+    bu, by, have, pos = [], [], 0, 0
+    for u, y in src.chunks(size):
+        lo, hi = max(first - pos, 0), min(stop - pos, len(u))
+        pos += len(u)
+        if hi > lo:
+            bu.append(u[lo:hi])
+            by.append(y[lo:hi])
+            have += hi - lo
+            while have >= size:
+                U, Y = (np.concatenate(b) if len(b) > 1 else b[0] for b in (bu, by))
+                yield U[:size], Y[:size]
+                bu, by, have = [U[size:]], [Y[size:]], have - size
+        if pos >= stop:
+            break
+    if have:
+        yield np.concatenate(bu), np.concatenate(by)
 
 
 def estimate_record(
@@ -139,7 +201,10 @@ def estimate_record(
     - `estimator`: e.g. `ContinuousRLS(P0=1e6, dt=dt)` (the paper's), `ForgettingRLS(...)` or
       `NormalisedGradient(...)`, with one weight per play, plus one for the offset when `offset`
       (a scalar P0 fits any size).
-    - `u`, `y` (T,): the record; `dt`: its sampling step in seconds.
+    - `u`, `y` (T,): the record; or `u` a [`RecordStream`][] (from [`open_record_stream`][]) and
+      `y` None, read again in chunks for each pass (the plays' states up to `start`, the
+      estimate, `final_rmse`), so memory does not grow with the record; `dt`: its sampling step
+      in seconds.
     - `thresholds` (n,): the play thresholds; `initial_states` (n,): the plays' states before
       the first sample (default: relaxed at u_0).
     - `offset`: estimate an output offset as one more weight (a constant regressor).
@@ -154,22 +219,23 @@ def estimate_record(
 
     **Returns:** an [`OnlineEstimate`][].
     """
-    u, y = _as_record(u, y, dt)
-    if not 0 <= int(start) <= u.shape[0] - 2:
-        raise ValueError(f"`start` must leave at least 2 samples of the record's {u.shape[0]}, got {start}")
+    src = _as_record(u, y, dt)
+    T_all = src.n_samples
+    if not 0 <= int(start) <= T_all - 2:
+        raise ValueError(f"`start` must leave at least 2 samples of the record's {T_all}, got {start}")
+    start = int(start)
     r = _checks.thresholds(thresholds, "thresholds")
     if r.ndim != 1 or r.shape[0] < 1:
         raise ValueError(f"`thresholds` must be a vector of at least one threshold, got shape {r.shape}")
     r = np.asarray(r, float)
     n = r.shape[0]
-    x0 = np.full(n, u[0]) if initial_states is None else np.asarray(initial_states, float)
+    x0 = np.full(n, src.u_first) if initial_states is None else np.asarray(initial_states, float)
     if x0.shape != (n,) or not np.all(np.isfinite(x0)):
         raise ValueError(f"`initial_states` must be {n} finite values, one per play, got {x0.shape}")
     if start:
         # The plays' states at `start`, from the samples before it.
-        x0 = np.asarray(_final_states(u[:start], r, x0, chunk), float)
-        u, y = u[start:], y[start:]
-    T = u.shape[0]
+        x0 = np.asarray(_final_states(_blocks(src, 0, start, chunk), r, x0), float)
+    T = T_all - start
     window = max(2, T // 10) if window is None else int(window)
     if not 2 <= window <= T:
         raise ValueError(f"`window` must be between 2 and the record's {T} samples, got {window}")
@@ -183,9 +249,14 @@ def estimate_record(
             f"({n} plays{' and an offset' if offset else ''})"
         )
     dtype = jnp.result_type(float)
-    a = max(float(np.max(np.abs(u))), float(np.max(np.abs(x0))), 1e-300) if rescale else 1.0
-    b = max(float(np.max(np.abs(y))), 1e-300) if rescale else 1.0
-    chunk = max(window, (chunk // window) * window)
+    # The scales of the whole record (also the samples before `start`), as the stream knows them.
+    a = max(abs(src.u_min), abs(src.u_max), float(np.max(np.abs(x0))), 1e-300) if rescale else 1.0
+    b = max(src.y_peak, 1e-300) if rescale else 1.0
+    # Chunks hold whole windows, or when a window is longer than a chunk, a chunk holds at most
+    # one window's start and the window's Gram is summed over chunks: memory is set by `chunk`.
+    long_windows = window > chunk
+    chunk = chunk if long_windows else (chunk // window) * window
+    gram_acc, info_acc = np.zeros((n + int(offset),) * 2), np.zeros((n + int(offset),) * 2)
     cert = isinstance(estimator, ContinuousRLS)
     m = n + int(offset)
     state = estimator.init(jnp.zeros(m, dtype))
@@ -197,29 +268,44 @@ def estimate_record(
     w_keep, lam_min, lam_max, infos = [], [], [], []
     e_sq_cum = 0.0
     err_at_marks = []
-    for first in range(0, T, chunk):
+    for first, (ub, yb) in zip(range(0, T, chunk), _blocks(src, start, T_all, chunk)):
         stop = min(first + chunk, T)
         size = stop - first
         pad = chunk - size
-        uc = np.concatenate([u[first:stop], np.full(pad, u[stop - 1])])
-        yc = np.concatenate([y[first:stop], np.zeros(pad)]) / b
+        uc = np.concatenate([ub, np.full(pad, ub[-1])])
+        yc = np.concatenate([yb, np.zeros(pad)]) / b
         valid = jnp.asarray(np.arange(chunk) < size)
         # Padding repeats the last input, which moves no play: the carried state is exact.
         x, Hn = _regressor_chunk(jnp.asarray(uc, dtype), rj, x, jnp.asarray(a, dtype), offset)
-        state, w, e, lo, hi, info, info_min = _run_chunk(estimator, state, Hn, jnp.asarray(yc, dtype), info, valid,
-                                                         window, cert)
+        if long_windows:
+            boundary = (first // window + 1) * window - first
+            # The boundary is traced, not static: one compiled program for every chunk.
+            state, w, e, G0, G1, I0, I1 = _run_chunk_long(estimator, state, Hn, jnp.asarray(yc, dtype), valid,
+                                                          jnp.asarray(boundary), cert)
+            gram_acc += np.asarray(G0)
+            info_acc += np.asarray(I0)
+            if boundary <= size:  # a window ends in this chunk
+                eig = np.linalg.eigvalsh(gram_acc / window)
+                lam_min.append(eig[:1])
+                lam_max.append(eig[-1:])
+                infos.append(np.linalg.eigvalsh(info_acc)[:1])
+                gram_acc = np.array(G1)
+            info_acc += np.asarray(I1)
+        else:
+            state, w, e, lo, hi, info, info_min = _run_chunk(estimator, state, Hn, jnp.asarray(yc, dtype), info,
+                                                             valid, window, cert)
+            full = size // window
+            lam_min.append(np.asarray(lo[:full]))
+            lam_max.append(np.asarray(hi[:full]))
+            infos.append(np.asarray(info_min[:full]))
         w, e = np.asarray(w[:size]), np.asarray(e[:size])
         in_chunk = marks[(marks >= first) & (marks < stop)] - first
         cum = np.cumsum(e.astype(float) ** 2) + e_sq_cum
         for k in in_chunk:
-            w_keep.append(w[k])
+            w_keep.append(w[k].copy())  # a row, not a view that would keep the chunk alive
             idx = first + k
             err_at_marks.append((cum[k], idx))
         e_sq_cum = float(cum[-1])
-        full = size // window
-        lam_min.append(np.asarray(lo[:full]))
-        lam_max.append(np.asarray(hi[:full]))
-        infos.append(np.asarray(info_min[:full]))
     W = np.asarray(w_keep) * (b / np.concatenate([np.full(n, a), np.ones(int(offset))]))
     prev_sq, prev_i, rms = 0.0, -1, []
     for s, i in err_at_marks:
@@ -227,7 +313,7 @@ def estimate_record(
         prev_sq, prev_i = s, i
     weights = W[-1, :n]
     off = float(W[-1, n]) if offset else 0.0
-    final_rmse = _final_rmse(u, y, r, x0, weights, off, chunk)
+    final_rmse = _final_rmse(_blocks(src, start, T_all, chunk), T, r, x0, weights, off)
     lo, hi = np.concatenate(lam_min), np.concatenate(lam_max)
     exciting = lo > numerical_tolerance(dtype) * np.maximum(hi, 1e-300)
     if cert:
@@ -247,25 +333,25 @@ def estimate_record(
     )
 
 
-def _final_rmse(u, y, r, x0, weights, offset, chunk) -> float:
-    """RMSE over the record of the PI model with the final weights, computed chunk by chunk."""
+def _final_rmse(blocks, T, r, x0, weights, offset) -> float:
+    """RMSE over the record of the PI model with the final weights, computed block by block."""
     dtype = jnp.result_type(float)
     x = jnp.asarray(x0, dtype)
     rj, wj = jnp.asarray(r, dtype), jnp.asarray(weights, dtype)
     sse = 0.0
-    for start in range(0, len(u), chunk):
-        H = play(jnp.asarray(u[start : start + chunk], dtype), rj, x, method="auto")
+    for u, y in blocks:
+        H = play(jnp.asarray(u, dtype), rj, x, method="auto")
         x = H[-1]
         pred = np.asarray(H @ wj, float) + offset
-        sse += float(np.sum((pred - y[start : start + chunk]) ** 2))
-    return math.sqrt(sse / len(u))
+        sse += float(np.sum((pred - y) ** 2))
+    return math.sqrt(sse / T)
 
 
-def _final_states(u, r, x0, chunk):
+def _final_states(blocks, r, x0):
     dtype = jnp.result_type(float)
     x, rj = jnp.asarray(x0, dtype), jnp.asarray(r, dtype)
-    for s in range(0, len(u), chunk):
-        x = play(jnp.asarray(u[s : s + chunk], dtype), rj, x, method="auto")[-1]
+    for u, _ in blocks:
+        x = play(jnp.asarray(u, dtype), rj, x, method="auto")[-1]
     return x
 
 
@@ -278,16 +364,25 @@ def settled_start(u, *, tolerance: float = 0.02) -> int:
     record that starts from an unknown history (a device at rest after earlier use) is estimated
     from there. When that takes more than half the record, 0 (estimate from the start).
 
-    **Arguments:** `u` (T,), the input; `tolerance`, as a fraction of max u − min u.
+    **Arguments:** `u` (T,), the input, or a [`RecordStream`][] (read in chunks); `tolerance`, as
+    a fraction of max u − min u.
 
     **Returns:** a sample index.
     """
-    u = np.asarray(u, float)
-    lo, hi = float(u.min()), float(u.max())
+    src = u if isinstance(u, RecordStream) else _Arrays(*(2 * (np.asarray(u, float),)))
+    lo, hi = src.u_min, src.u_max
     band = tolerance * (hi - lo)
     if not hi - lo > 0:
         return 0
-    at_max = np.flatnonzero(u >= hi - band)
-    at_min = np.flatnonzero(u <= lo + band)
-    k = int(max(at_max[0], at_min[0]))
-    return k if k <= len(u) // 2 else 0
+    first_max = first_min = None
+    pos = 0
+    for uc, _ in src.chunks(DEFAULT_CHUNK):
+        if first_max is None and np.any(uc >= hi - band):
+            first_max = pos + int(np.argmax(uc >= hi - band))
+        if first_min is None and np.any(uc <= lo + band):
+            first_min = pos + int(np.argmax(uc <= lo + band))
+        pos += len(uc)
+        if first_max is not None and first_min is not None:
+            break
+    k = max(first_max, first_min)
+    return k if k <= src.n_samples // 2 else 0
