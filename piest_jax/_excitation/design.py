@@ -38,11 +38,12 @@ class InputDesign(NamedTuple):
     """What [`design_input`][] returns.
 
     **Fields:** `u` (N,) the designed input; `margin` the smallest `pe_margin` over its windows
-    (from zero initial play states); `margins` (windows,) each window's; `levels` (n,) the
-    half-cycles' peak-to-peak travel q_m; `pairs` (n,) up-and-down pairs of each level per
-    period; `period` samples per period; `shares` (n,) the optimal share of travel per level
-    (before rounding); `ideal_margin` the margin the shares promise per window (the relaxed
-    optimum, before rounding and window alignment); `slew` the slew limit S per second.
+    (every window // 10 samples, from zero initial play states); `margins` (windows,) each
+    window's; `levels` (n,) the half-cycles' peak-to-peak travel q_m; `pairs` (n,) up-and-down
+    pairs of each level per period; `period` samples per period; `shares` (n,) the optimal share
+    of samples per level (before rounding); `ideal_margin` the margin the shares promise per
+    window (the relaxed optimum, before rounding and window alignment); `slew` the slew limit S
+    per second.
     """
 
     u: np.ndarray
@@ -90,7 +91,7 @@ def optimal_shares(r, amplitude, step, *, iterations: int = 3000):
     """
     r = np.asarray(r, float)
     gains, levels = _gains(r, float(amplitude))
-    levels = _costs(r, levels, step)
+    costs = _costs(r, levels, step)
     n = r.size
     # The subgradient of λ_min at share m is vᵀ M_m v / q_m with v its eigenvector; mirror ascent
     # on the simplex with steps 1/√k, keeping the best point seen (λ_min is not smooth where its
@@ -99,11 +100,11 @@ def optimal_shares(r, amplitude, step, *, iterations: int = 3000):
     best, best_y = -np.inf, y
     P = np.tril(np.ones((n, n)))
     for k in range(1, iterations + 1):
-        lam, V = np.linalg.eigh(_information(y, gains, levels))
+        lam, V = np.linalg.eigh(_information(y, gains, costs))
         if lam[0] > best:
             best, best_y = lam[0], y
         proj = (P @ V[:, 0]) ** 2 * gains**2  # (p_i · v)² g_i²
-        grad = np.cumsum(proj) / levels  # level m gets the rows i <= m
+        grad = np.cumsum(proj) / costs  # level m gets the rows i <= m
         step = 1.0 / (math.sqrt(k) * max(float(np.max(np.abs(grad))), np.finfo(float).tiny))
         y = y * np.exp(step * (grad - grad.max()))
         y = y / y.sum()
@@ -115,7 +116,9 @@ def _travel(points, step):
     out = [np.asarray([points[0]], float)]
     for a, b in zip(points[:-1], points[1:]):
         k = max(1, math.ceil(abs(b - a) / step - 1e-9))
-        out.append(a + (b - a) * np.arange(1, k + 1) / k)
+        seg = a + (b - a) * np.arange(1, k + 1) / k
+        seg[-1] = b  # the point itself, not a rounding of it
+        out.append(seg)
     return np.concatenate(out)
 
 
