@@ -144,6 +144,8 @@ def test_cli_excite(tmp_path, capsys):
     (["--thresholds", "0,1", "--weights", "1,2,3"], "--weights has 3 values for 2"),
     (["--thresholds", "0,1", "--window", "5"], "longer than the window"),
     (["--thresholds", "0,1", "--frequency", "600"], "Nyquist"),
+    (["--thresholds", "0"], "give --amplitude"),
+    (["--thresholds", "0,1", "--amplitude", "1e300"], "--amplitude (1e+300) is too large"),
 ])
 def test_cli_excite_errors(tmp_path, capsys, argv, message):
     assert main(["excite", "--samples", "500", "--out", str(tmp_path / "x"), *argv]) == 2

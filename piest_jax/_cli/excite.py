@@ -58,11 +58,14 @@ def _settings(args):
     r = np.asarray(args.thresholds, float)
     if r[0] < 0 or np.any(np.diff(r) <= 0):
         raise CLIError("--thresholds must be >= 0 and increase strictly, e.g. 0,1,2")
+    if args.amplitude is None and r[-1] == 0:
+        raise CLIError("give --amplitude: its default, twice the largest threshold, is 0 here")
     amplitude = 2 * float(r[-1]) if args.amplitude is None else args.amplitude
-    if amplitude <= r[-1] or amplitude == 0:
+    if amplitude <= r[-1]:
         raise CLIError(f"--amplitude ({amplitude:g}) must exceed the largest threshold ({r[-1]:g})")
-    if args.samples < 2:
-        raise CLIError(f"--samples must be at least 2, got {args.samples}")
+    if args.window is None and args.samples < 10:
+        raise CLIError(f"--samples {args.samples} is too short for the default window (samples // 5, "
+                       "at least 2): give at least 10, or --window")
     window = args.samples // 5 if args.window is None else args.window
     if not 2 <= window <= args.samples:
         raise CLIError(f"--window ({window} samples) must be between 2 and --samples ({args.samples})")

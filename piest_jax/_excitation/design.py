@@ -146,6 +146,9 @@ def _check(r, amplitude, n_samples, window, dt, slew):
     for name, v in (("amplitude", amplitude), ("dt", dt), ("slew", slew)):
         if isinstance(v, bool) or not isinstance(v, int | float | np.floating) or not (math.isfinite(v) and v > 0):
             raise ValueError(f"`{name}` must be a positive finite number, got {v!r}")
+    if amplitude > 1e150:
+        raise ValueError(f"`amplitude` ({amplitude:g}) is too large: the design squares swings of 2 A; "
+                         "express the input in larger units")
     if amplitude <= r[-1]:
         raise ValueError(
             f"`amplitude` ({amplitude:g}) must exceed the largest threshold ({r[-1]:g}): a swing of "
