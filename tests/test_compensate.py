@@ -167,3 +167,15 @@ def test_feedforward_with_a_creep_stronger_than_the_identity_play():
     # the rest input reproduces the first target with the lags at rest there, by a plain loop
     x = np.clip(op.initial_states, ff[0] - r, ff[0] + r)
     assert float(np.dot(op.weights, x)) - 1.0 * ff[0] + 0.2 == pytest.approx(target[0], abs=1e-9)
+
+
+def test_cli_notes_a_creep_whose_steady_gain_outweighs_the_first_play(tmp_path, capsys):
+    op = pj.PIOperator(np.array([0.0, 0.3]), np.array([0.5, 0.8]), np.full(2, 1.0))
+    pj.save_model(tmp_path / "m.json", pj.HysteresisModel(op, pj.Creep([0.05, 8.0], [4.0, -5.0], 5e-3)))
+    t = np.arange(400) * 5e-3
+    (tmp_path / "d.csv").write_text("t,desired\n" + "".join(f"{a},{np.sin(3 * a)}\n" for a in t))
+    assert main(["compensate", str(tmp_path / "m.json"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert "the creep's steady gain (-1) outweighs the first play's weight (0.5)" in err
+    rep = json.loads((tmp_path / "o" / "compensate.json").read_text())
+    assert rep["max_model_error"] < 1e-9

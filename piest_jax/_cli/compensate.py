@@ -129,6 +129,12 @@ def run(args) -> int:
         # The model's own run: its lags at rest at the first input, as the feedforward assumed
         # unless the file states their states.
         ym = np.asarray(model(u))
+        steady = float(np.sum(np.asarray(creep.weights)))
+        if float(w[0]) + steady <= 0:
+            print(f"piest compensate: note: {args.model}: the creep's steady gain ({steady:.4g}) outweighs "
+                  f"the first play's weight ({float(w[0]):.4g}), so the model's static map falls where only "
+                  "that play moves; the feedforward can drift on a slowly varying desired output",
+                  file=sys.stderr)
     return _write(args, out, t, yd, u, ym, {"column": col, "initial_states": x0})
 
 
