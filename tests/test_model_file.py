@@ -104,6 +104,8 @@ def test_files_without_a_schema_are_pi_models(tmp_path):
         ({"thresholds": R, "weights": W[:2]}, r"must be equal vectors"),
         ({"thresholds": R, "weights": [1.0, None, 2.0]}, r"must be finite"),
         ({"thresholds": [0.0, 0.5, 0.5], "weights": W}, r"`thresholds` must be strictly increasing"),
+        ({"thresholds": R, "weights": W, "creep": {"time_constants": [1.0], "weights": [0.1], "dt": 0.01}},
+         r"it has a `creep` but no `\"structure\": \"pi\+creep\"`"),
     ],
 )
 def test_bad_model_files_are_refused_naming_the_file(tmp_path, content, message):

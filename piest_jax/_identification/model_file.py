@@ -96,6 +96,9 @@ def model_from_keys(keys, source: str = "<model>"):
             "upgrade piest_jax"
         )
     name = keys.get("structure", "pi")
+    if "structure" not in keys and keys.get("creep") is not None:
+        # Read as a plain PI, the creep would be dropped without a word.
+        raise DataError(f'{source}: it has a `creep` but no `"structure": "pi+creep"` to say it is used')
     if name not in _STRUCTURES:
         raise DataError(
             f"{source}: unknown model structure {name!r}; this piest_jax reads {', '.join(_STRUCTURES)}"
