@@ -2,6 +2,8 @@
 
     python experiments/exact_condition_study.py [--draws 3000] [--seed 2026] [--check 60]
         ->  experiments/results/exact_condition_study.json
+    python experiments/exact_condition_study.py --settle-all --families all --draws 10000 \
+        --samples 2000 --window 400 --seed 100 --out experiments/results/exact_condition_settled.json
 
 Runs a map (T = 5000, n = 10 plays, windows of 1000 samples every 100, the seven default families,
 float64), then settles, in exact rational arithmetic, every draw where the exact condition
@@ -27,7 +29,7 @@ import piest_jax as pj
 
 jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from reference import exact_window_pe  # noqa: E402  (the tests' independent reference)
+from reference import exact_window_pe as rational_window_pe  # noqa: E402  (the tests' reference)
 
 OUT = Path(__file__).parent / "results" / "exact_condition_study.json"
 
@@ -45,9 +47,15 @@ def main(argv=None):
     p.add_argument("--draws", type=int, default=3000)
     p.add_argument("--seed", type=int, default=2026)
     p.add_argument("--check", type=int, default=60, help="agreeing draws checked at random")
+    p.add_argument("--samples", type=int, default=5000)
+    p.add_argument("--window", type=int, help="default samples // 5")
+    p.add_argument("--families", default="default", help="`default`, `all` or comma-separated names")
+    p.add_argument("--settle-all", action="store_true", help="settle every 'not PE' draw exactly")
     p.add_argument("--out", default=str(OUT))
     args = p.parse_args(argv)
-    s = pj.make_settings(n_samples=5000, dtype="float64")
+    chosen = {} if args.families == "default" else {
+        "families": pj.INPUT_FAMILIES if args.families == "all" else tuple(args.families.split(","))}
+    s = pj.make_settings(n_samples=args.samples, window=args.window, dtype="float64", **chosen)
     key = jax.random.key(args.seed)
     res = pj.pe_map(key, args.draws, s, quiet=True)
     tol = pj.numerical_tolerance("float64")
@@ -60,9 +68,13 @@ def main(argv=None):
     sample = np.concatenate([rng.choice(agree_no, min(half, agree_no.size), replace=False),
                              rng.choice(agree_yes, min(args.check - half, agree_yes.size), replace=False)])
     rows, t0 = [], time.perf_counter()
-    for i in np.concatenate([disputed, np.sort(sample)]):
+    todo = np.concatenate([disputed, np.sort(sample)])
+    if args.settle_all:
+        todo = np.unique(np.concatenate([todo, np.flatnonzero(~exact)]))
+    for i in todo:
         u, r, x0, _ = draw(s, key, int(i))
-        truth = bool(np.all(exact_window_pe(u, r, x0, s.window, s.stride)))
+        truth = bool(np.all(pj.exact_window_pe(u, r, x0, s.window, stride=s.stride) if args.settle_all
+                            else rational_window_pe(u, r, x0, s.window, s.stride)))
         rows.append(dict(draw=int(i), family=pj.INPUT_FAMILIES[int(res["family"][i])], raw_gram_pe=bool(pe[i]),
                          exact_condition=bool(exact[i]), exact_arithmetic_pe=truth,
                          raw_level=float(res["c1_normalised"][i]), event_level=float(res["exact_level"][i])))

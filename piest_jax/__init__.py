@@ -69,6 +69,7 @@ _EXPORTS = {
     "event_rows": ("._excitation.exact_condition", "event_rows"),
     "exact_condition": ("._excitation.exact_condition", "exact_condition"),
     "pe_margin": ("._excitation.exact_condition", "pe_margin"),
+    "exact_window_pe": ("._excitation.exact_arithmetic", "exact_window_pe"),
     "InputDesign": ("._excitation.design", "InputDesign"),
     "design_input": ("._excitation.design", "design_input"),
     "excitation_report": ("._excitation.design_compare", "excitation_report"),
@@ -204,6 +205,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.design_compare import excitation_figure as excitation_figure
     from ._excitation.design_compare import excitation_report as excitation_report
     from ._excitation.draw_metrics import draw_statistics as draw_statistics
+    from ._excitation.exact_arithmetic import exact_window_pe as exact_window_pe
     from ._excitation.exact_condition import EventRows as EventRows
     from ._excitation.exact_condition import ExactCondition as ExactCondition
     from ._excitation.exact_condition import event_rows as event_rows

@@ -265,3 +265,27 @@ def test_theorem4_margin_example_triangle():
     assert 0 < m[0] <= lo[0]
     # The bound is within a factor 20 of the level here.
     assert lo[0] / m[0] < 20
+
+
+@seed(DYADIC_SEED)
+@given(dyadic_cases())
+def test_modular_settlement_equals_the_rational_rank(case):
+    # pj.exact_window_pe (exact integer outputs, rank modulo two primes) against the rational
+    # reference, on the adversarial cases above.
+    u, r, x0, window, stride = case
+    np.testing.assert_array_equal(pj.exact_window_pe(u, r, x0, window, stride=stride),
+                                  exact_window_pe(u, r, x0, window, stride))
+
+
+@pytest.mark.parametrize("family", ["noise", "nested", "touch"])
+def test_modular_settlement_on_map_draws_at_any_scale(family):
+    # Map draws (floats of every exponent) and the same draws scaled by 2^-60 and 2^60: the
+    # common power of two changes nothing, and the verdict is the rational rank's.
+    T, n, window, stride = 160, 4, 40, 10
+    t = jnp.arange(T) * 0.01
+    for i in range(3):
+        u, r, x0, _ = (np.asarray(a) for a in draw_case(jax.random.key(300 + i), family, t, n))
+        ref = exact_window_pe(u, r, x0, window, stride)
+        for scale in (1.0, 2.0**-60, 2.0**60):
+            got = pj.exact_window_pe(u * scale, r * scale, x0 * scale, window, stride=stride)
+            np.testing.assert_array_equal(got, ref)
