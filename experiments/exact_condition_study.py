@@ -80,7 +80,6 @@ def main(argv=None):
                          raw_gram_pe=bool(pe[i]),
                          exact_condition=bool(exact[i]), exact_arithmetic_pe=truth,
                          raw_level=float(res["c1_normalised"][i]), event_level=float(res["exact_level"][i])))
-    checked = rows
     kept = set(disputed.tolist()) | set(sample.tolist())
     # A long settled study keeps the rows worth reading: the disputes, the random checks and any
     # draw that either float verdict got wrong; the rest are counted.
@@ -89,12 +88,12 @@ def main(argv=None):
     report = dict(
         seed=args.seed, start=args.start, draws=args.draws, settings=s._asdict(), tolerance=tol,
         pe_raw_gram=int(pe.sum()), exact_condition_holds=int(exact.sum()),
-        disputed=int(disputed.size), checked=len(checked),
+        disputed=int(disputed.size), checked=len(rows),
         exact_condition_mismatches=dict(
-            holds_but_not_pe=sum(r["exact_condition"] and not r["exact_arithmetic_pe"] for r in checked),
-            fails_but_pe=sum(not r["exact_condition"] and r["exact_arithmetic_pe"] for r in checked),
+            holds_but_not_pe=sum(r["exact_condition"] and not r["exact_arithmetic_pe"] for r in rows),
+            fails_but_pe=sum(not r["exact_condition"] and r["exact_arithmetic_pe"] for r in rows),
         ),
-        raw_gram_mismatches=sum(r["raw_gram_pe"] != r["exact_arithmetic_pe"] for r in checked),
+        raw_gram_mismatches=sum(r["raw_gram_pe"] != r["exact_arithmetic_pe"] for r in rows),
         exact_arithmetic_seconds=time.perf_counter() - t0,
         map_seconds=float(res["seconds"]),
         rows=shown,

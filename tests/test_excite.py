@@ -109,9 +109,10 @@ def test_design_refuses_what_it_cannot_do():
 
 def test_time_to_error_and_worst_case_against_loops():
     err = np.array([1.0, 0.5, 0.005, 0.02, 0.009, 0.001])
-    assert time_to_error(err, 0.1) == pytest.approx(0.5)  # below for good from the 5th sample
-    assert time_to_error(np.array([0.5, 0.02]), 0.1) == math.inf
-    assert time_to_error(np.array([0.001, 0.002]), 0.1) == pytest.approx(0.1)
+    times = 0.1 * np.arange(1, 7)
+    assert time_to_error(err, times) == pytest.approx(0.5)  # below for good from the 5th reading
+    assert time_to_error(np.array([0.5, 0.02]), times[:2]) == math.inf
+    assert time_to_error(np.array([0.001, 0.002]), times[:2]) == pytest.approx(0.1)
     rng = np.random.default_rng(0)
     H = np.cumsum(rng.normal(size=(103, 3)), axis=0)
     k, worst = worst_case_error(jnp.asarray(H), dt=0.01, P0=50.0, readings=10)

@@ -157,9 +157,14 @@ def read_record(path, args, *, validation: bool = False):
             f"continuous in time, and the plays' memory would run on from one into the next; {choose}"
         )
     if rec.time_is_index:
-        note(args, f"{path} has no time in seconds: t counts samples (step 1), so the times, "
-             "time constants and rates in the results are in samples")
+        note_sample_time(args, path)
     return rec
+
+
+def note_sample_time(args, path) -> None:
+    """The note for a record whose time counts samples."""
+    note(args, f"{path} has no time in seconds: t counts samples (step 1), so the times, "
+         "time constants and rates in the results are in samples")
 
 
 def record_fields(rec, args) -> dict:

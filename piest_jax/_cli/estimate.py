@@ -11,7 +11,7 @@ from ._common import (
     add_output_options,
     add_record_options,
     float_list,
-    note,
+    note_sample_time,
     positive_float,
     positive_int,
     read_record,
@@ -102,18 +102,27 @@ def _thresholds(args, rec):
         if r.ndim != 1 or r.size < 1 or not np.all(np.isfinite(r)) or (x0 is not None and x0.shape != r.shape):
             raise CLIError(f"--from-fit {args.from_fit}: `thresholds` and `initial_states` do not match")
         return r, x0
-    lo, hi = (rec.u_min, rec.u_max) if isinstance(rec, _StreamRecord) else (np.min(rec.u), np.max(rec.u))
-    half = 0.5 * float(hi - lo)
+    half = 0.5 * (rec.u_max - rec.u_min)
     return np.arange(args.plays) * half / args.plays, None
 
 
-class _StreamRecord:
-    """What this command reads of a record, from a `RecordStream`."""
+class _Record:
+    """What this command reads of its record, read whole or as a stream: `source` (the arguments
+    `estimate_record` takes for it), `held` (samples held in memory) and the record's facts."""
 
-    def __init__(self, stream):
-        self.stream, self.dt, self.n_samples = stream, stream.dt, stream.n_samples
-        self.t0, self.time_is_index = stream.t0, stream.time_is_index
-        self.u_min, self.u_max = stream.u_min, stream.u_max
+    def __init__(self, args):
+        stream = _stream(args)
+        if stream is None:
+            rec = read_record(args.data, args)
+            self.source, self.held, self.t0 = (rec.u, rec.y), rec.n_samples, float(rec.t[0])
+            self.u_min, self.u_max = float(np.min(rec.u)), float(np.max(rec.u))
+        else:
+            if stream.time_is_index:
+                note_sample_time(args, args.data)
+            rec = stream
+            self.source, self.held, self.t0 = (stream, None), 0, stream.t0
+            self.u_min, self.u_max = stream.u_min, stream.u_max
+        self.dt, self.n_samples, self.time_is_index = rec.dt, rec.n_samples, rec.time_is_index
 
 
 def _stream(args):
@@ -150,14 +159,7 @@ def run(args) -> int:
         raise CLIError(f"--forgetting must be in (0, 1], got {args.forgetting}")
     start = _start(args.start)
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    stream = _stream(args)
-    if stream is not None:
-        if stream.time_is_index:
-            note(args, f"{args.data} has no time in seconds: t counts samples (step 1), so the times, "
-                 "time constants and rates in the results are in samples")
-        rec = _StreamRecord(stream)
-    else:
-        rec = read_record(args.data, args)
+    rec = _Record(args)
     r, x0 = _thresholds(args, rec)
     if args.estimator == "rls":
         est = pj.ContinuousRLS(args.P0, rec.dt, normalisation=args.normalisation)
@@ -168,9 +170,8 @@ def run(args) -> int:
     else:
         est = pj.NormalisedGradient(args.gain)
         settings = dict(gain=args.gain)
-    source = (rec.stream, None) if isinstance(rec, _StreamRecord) else (rec.u, rec.y)
-    t0 = rec.t0 if isinstance(rec, _StreamRecord) else float(rec.t[0])
-    k0 = settled_start(source[0]) if start == "auto" else int(round((start - t0) / rec.dt))
+    t0 = rec.t0
+    k0 = settled_start(rec.source[0]) if start == "auto" else int(round((start - t0) / rec.dt))
     if not 0 <= k0 <= rec.n_samples - 2:
         raise CLIError(f"--start {args.start} leaves fewer than 2 samples of the record")
     window = None if args.window is None else int(round(args.window / rec.dt))
@@ -180,10 +181,9 @@ def run(args) -> int:
 
     m = len(r) + (not args.no_offset)
     block = min(rec.n_samples, DEFAULT_CHUNK)  # a chunk holds whole windows or part of one
-    held = 0 if isinstance(rec, _StreamRecord) else rec.n_samples  # samples held in memory
-    memory.require(memory.rls_bytes(m, held) + memory.bank_bytes(block, m),
+    memory.require(memory.rls_bytes(m, rec.held) + memory.bank_bytes(block, m),
                    f"{m} weights ({len(r)} plays) on {args.data}", "use fewer plays")
-    res = estimate_record(est, *source, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset,
+    res = estimate_record(est, *rec.source, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset,
                           window=window, start=k0)
     report = dict(
         data=str(args.data), estimator=args.estimator, settings=settings, offset_estimated=not args.no_offset,

@@ -56,8 +56,8 @@ class RecordStream:
 
     def chunks(self, size: int = CHUNK_ROWS):
         """Consecutive `(u, y)` arrays of `size` samples (the last may be shorter)."""
-        for data in self._rows(size):
-            yield data[:, 1].copy(), data[:, 2].copy()
+        for data in self._rows(size):  # (t,) u, y: the last two columns read
+            yield data[:, -2].copy(), data[:, -1].copy()
 
 
 def _plain_columns(path, source, names):
@@ -124,9 +124,6 @@ def open_record_stream(path, *, columns=None, dt_tolerance: float = 1e-3) -> Rec
     # passes too; anything else it decides itself.
     if n < MIN_SAMPLES or hi_step > lo_step * (1 + dt_tolerance):
         return None
-    if time is None:
-        # The rows were numbered while reading; the columns read are input and output only.
-        return dataclasses.replace(probe, n_samples=n, t0=0.0, dt=1.0, u_min=float(u_min), u_max=float(u_max),
-                                   u_first=u_first, y_peak=y_peak, _cols=(cols[0], cols[0], cols[1]))
+    # Without a time column the rows were numbered while reading: t0 = 0, dt = 1.
     return dataclasses.replace(probe, n_samples=n, t0=t0, dt=(t_prev - t0) / (n - 1), u_min=float(u_min),
                                u_max=float(u_max), u_first=u_first, y_peak=y_peak)

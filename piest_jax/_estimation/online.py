@@ -256,9 +256,9 @@ def estimate_record(
     # one window's start and the window's Gram is summed over chunks: memory is set by `chunk`.
     long_windows = window > chunk
     chunk = chunk if long_windows else (chunk // window) * window
-    gram_acc, info_acc = np.zeros((n + int(offset),) * 2), np.zeros((n + int(offset),) * 2)
     cert = isinstance(estimator, ContinuousRLS)
     m = n + int(offset)
+    gram_acc, info_acc = np.zeros((m, m)), np.zeros((m, m))
     state = estimator.init(jnp.zeros(m, dtype))
     info = jnp.zeros((m, m), dtype)
     x = jnp.asarray(x0, dtype)
@@ -369,7 +369,11 @@ def settled_start(u, *, tolerance: float = 0.02) -> int:
 
     **Returns:** a sample index.
     """
-    src = u if isinstance(u, RecordStream) else _Arrays(*(2 * (np.asarray(u, float),)))
+    if isinstance(u, RecordStream):
+        src = u
+    else:
+        u = np.asarray(u, float)
+        src = _Arrays(u, u)  # the input alone: its chunks' second half is unused
     lo, hi = src.u_min, src.u_max
     band = tolerance * (hi - lo)
     if not hi - lo > 0:

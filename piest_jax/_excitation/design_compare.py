@@ -8,36 +8,32 @@ import numpy as np
 from .._estimation.estimators import estimate
 from .._estimation.rls import ContinuousRLS
 from .._operators.play import play
+from .draw_metrics import TARGET_ERROR, cumulative_information
 from .exact_condition import exact_condition, pe_margin
 from .pe import windowed_pe_levels
 
-#: The relative weight error whose first passage for good is reported.
-TARGET_ERROR = 0.01
 
+def time_to_error(error, times, target: float = TARGET_ERROR):
+    """The first of `times` from which `error` stays at or below `target`; inf if it ends above.
 
-def time_to_error(error, dt: float, target: float = TARGET_ERROR):
-    """The time from which `error` stays at or below `target` to the end; inf if it ends above.
+    **Arguments:** `error` (K,) readings of an error; `times` (K,) when each was read.
 
-    **Arguments:** `error` (T,) an error after each sample; `dt` the sampling step.
-
-    **Returns:** seconds (sample k counts as (k + 1) dt: the error after k + 1 samples), or inf.
+    **Returns:** a time, or inf.
     """
-    error = np.asarray(error)
-    above = np.flatnonzero(error > target)
+    above = np.flatnonzero(np.asarray(error) > target)
     if above.size == 0:
-        return dt
-    if above[-1] == error.size - 1:
+        return float(times[0])
+    if above[-1] == len(times) - 1:
         return math.inf
-    return float((above[-1] + 2) * dt)
+    return float(times[above[-1] + 1])
 
 
 def worst_case_error(H, *, dt: float, P0: float, readings: int = 200):
     """The RLS weight error for the worst weight vector, 1 / (1 + P0 λ_min(A_k)), over time.
 
-    A_k = Σ_{i<k} c_i h_i h_iᵀ, c_i = dt / (1 + h_iᵀ h_i)², on H / max |H| (the scale
-    `estimate(..., rescale=True)` runs at; the relative error does not depend on y's scale).
-    Depends on the input alone; it is what the margin bounds (Corollary 5 of
-    `docs/excitation_condition.md`).
+    A_k from `cumulative_information` on H / max |H| (the scale `estimate(..., rescale=True)`
+    runs at; the relative error does not depend on y's scale). Depends on the input alone; it is
+    what the margin bounds (Corollary 5 of `docs/excitation_condition.md`).
 
     **Arguments:** `H` (T, n) play outputs; `dt`, `P0` as the estimator's; `readings`, how many
     evenly spaced times to read it at (the last is T).
@@ -45,15 +41,10 @@ def worst_case_error(H, *, dt: float, P0: float, readings: int = 200):
     **Returns:** `(k, error)`: sample counts (readings,) and the worst-case error after each.
     """
     H = jnp.asarray(H)
-    T, n = H.shape
-    block = -(-T // min(readings, T))
-    Hs = jnp.zeros((-(-T // block) * block, n), H.dtype).at[:T].set(H / jnp.max(jnp.abs(H)))
-    c = dt / (1 + jnp.sum(Hs * Hs, axis=1)) ** 2
-    parts = (x.reshape(-1, block, n) for x in (Hs * c[:, None], Hs))
-    A = jnp.cumsum(jnp.einsum("bki,bkj->bij", *parts), axis=0)
+    T = H.shape[0]
+    k, A = cumulative_information(H / jnp.max(jnp.abs(H)), dt, T, -(-T // min(readings, T)))
     lam = jnp.linalg.eigvalsh(0.5 * (A + jnp.swapaxes(A, -1, -2)))[:, 0]
-    k = np.minimum(np.arange(1, A.shape[0] + 1) * block, T)
-    return k, np.asarray(1 / (1 + P0 * jnp.maximum(lam, 0.0)))
+    return np.asarray(k), np.asarray(1 / (1 + P0 * jnp.maximum(lam, 0.0)))
 
 
 def excitation_report(u, r, weights, *, dt: float, window: int, P0: float = 1e3) -> dict:
@@ -82,17 +73,15 @@ def excitation_report(u, r, weights, *, dt: float, window: int, P0: float = 1e3)
     err = np.asarray(jnp.linalg.norm(est.weights - w, axis=1) / jnp.linalg.norm(w))
     margins = np.asarray(pe_margin(H, u, r, window, stride=stride))
     k, worst = worst_case_error(H, dt=dt, P0=P0)
-    above = np.flatnonzero(worst > TARGET_ERROR)
-    worst_time = float(k[0] * dt) if above.size == 0 else (
-        math.inf if above[-1] == worst.size - 1 else float(k[above[-1] + 1] * dt))
     return dict(
         margin=float(margins.min()),
         margins=margins,
         pe_level=float(jnp.min(windowed_pe_levels(H, window, stride=stride))),
         exact_condition_holds=bool(jnp.all(exact_condition(H, u, r, window, stride=stride).holds)),
-        time_to_1pct=time_to_error(err, dt),
+        # The error after sample i is read at (i + 1) dt.
+        time_to_1pct=time_to_error(err, (np.arange(err.size) + 1) * dt),
         final_error=float(err[-1]),
-        time_to_1pct_worst=worst_time,
+        time_to_1pct_worst=time_to_error(worst, k * dt),
         final_error_worst=float(worst[-1]),
         error=err,
         worst_k=k,

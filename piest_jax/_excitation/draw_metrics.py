@@ -41,23 +41,34 @@ def _first_for_good(below, checkpoints):
     return jnp.where(stays[-1], checkpoints[first], -1)
 
 
+def cumulative_information(H, dt: float, n_samples: int, block: int):
+    """The RLS information A_k = Σ_{i<k} c_i h_i h_iᵀ, c_i = dt / (1 + h_iᵀ h_i)², read every
+    `block` samples up to `n_samples` (the paper's normalisation m = 1 + hᵀh, divided by m²).
+
+    **Returns:** `(k, A)`: sample counts (K,) = block, 2 block, ..., n_samples, and A_k (K, n, n).
+    """
+    n = H.shape[1]
+    k = _checkpoints(n_samples, block)
+    Hr = jnp.zeros((k.shape[0] * block, n), H.dtype).at[:n_samples].set(H[:n_samples])
+    c = dt / (1 + jnp.sum(Hr * Hr, axis=1)) ** 2
+    blocks = jnp.einsum("bki,bkj->bij", *(x.reshape(-1, block, n) for x in (Hr * c[:, None], Hr)))
+    return k, jnp.cumsum(blocks, axis=0)
+
+
 def samples_to_target(H, w, settings: MapSettings):
     """When the RLS weight error falls below `TARGET_ERROR` for good (checked every `stride`).
 
-    The error after k samples is ‖(I + P0 A_k)⁻¹ W‖ / ‖W‖ with A_k = Σ_{i<k} c_i h_i h_iᵀ (the
-    information form of `draw_statistics`), read at k = stride, 2 stride, ..., `rls_samples`; its
-    worst case over weight vectors W is 1 / (1 + P0 λ_min(A_k)), which depends on the input only.
+    The error after k samples is ‖(I + P0 A_k)⁻¹ W‖ / ‖W‖ with A_k from
+    `cumulative_information` (the information form of `draw_statistics`), read at
+    k = stride, 2 stride, ..., `rls_samples`; its worst case over weight vectors W is
+    1 / (1 + P0 λ_min(A_k)), which depends on the input only.
 
-    **Returns:** `(measured, worst, worst_error)`: the first k from which every later reading of
-    the error for `w` (of its worst case) is below the target, or −1; the worst case after
-    `rls_samples`.
+    **Returns:** `(measured, worst, error, worst_error)`: the first k from which every later
+    reading of the error for `w` (of its worst case) is below the target, or −1; both errors
+    after `rls_samples`.
     """
     s = settings
-    T, n = s.rls_samples, H.shape[1]
-    checks = _checkpoints(T, s.stride)
-    Hr = jnp.zeros((checks.shape[0] * s.stride, n), H.dtype).at[:T].set(H[:T])
-    c = s.dt / (1 + jnp.sum(Hr * Hr, axis=1)) ** 2
-    blocks = jnp.einsum("bki,bkj->bij", *(x.reshape(-1, s.stride, n) for x in (Hr * c[:, None], Hr)))
+    checks, A = cumulative_information(H, s.dt, s.rls_samples, s.stride)
 
     def errors(A):
         # One matrix per call (see the eigensolver note in `draw_statistics`).
@@ -65,10 +76,10 @@ def samples_to_target(H, w, settings: MapSettings):
         shrink = 1 / (1 + s.P0 * jnp.maximum(lam, 0.0))
         return jnp.linalg.norm(V @ ((V.T @ w) * shrink)), shrink[0]
 
-    err, worst = lax.map(errors, jnp.cumsum(blocks, axis=0))
+    err, worst = lax.map(errors, A)
     err = err / jnp.linalg.norm(w)
     return (_first_for_good(err <= TARGET_ERROR, checks),
-            _first_for_good(worst <= TARGET_ERROR, checks), worst[-1])
+            _first_for_good(worst <= TARGET_ERROR, checks), err[-1], worst[-1])
 
 
 def guaranteed_samples(H, margins, settings: MapSettings):
@@ -132,20 +143,13 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
     level = _event_level(H, u, r, s.window, s.stride)
     exact = level > numerical_tolerance(dtype)
     margins = jnp.where(exact, _margin(H, u, r, s.window, s.stride), 0.0)
-    Hr = H[: s.rls_samples]
-    c = (s.dt / (1 + jnp.sum(Hr * Hr, axis=1)) ** 2).astype(dtype)
-    A = (Hr * c[:, None]).T @ Hr
     # One matrix per eigensolver call, in a loop. The batched CPU solver splits a large batch
     # into tasks on XLA:CPU's intra-op pool and blocks a pool thread until they finish; two such
     # calls at once (one per device when a CPU is split into several, or two calls scheduled
     # side by side) can hold every pool thread and wait forever. A single matrix runs inline.
-    lam_all, V_all = lax.map(
-        jnp.linalg.eigh, jnp.concatenate([stats.gram, (0.5 * (A + A.T))[None]])
-    )
-    eig, lam, V = lam_all[:-1], lam_all[-1], V_all[-1]
+    eig = lax.map(jnp.linalg.eigvalsh, stats.gram)
     lam_min, lam_max = eig[:, 0], eig[:, -1]
-    err = V @ ((V.T @ w) / (1 + s.P0 * jnp.maximum(lam, 0.0)))
-    measured, worst, worst_error = samples_to_target(H, w, s)
+    measured, worst, weight_error, worst_error = samples_to_target(H, w, s)
     guaranteed, guaranteed_error = guaranteed_samples(H, margins, s)
     return dict(
         rho=jnp.min(stats.urange) / (2 * r[-1]),
@@ -161,7 +165,7 @@ def draw_statistics(u, r, x0, w, settings: MapSettings) -> dict:
         exact=jnp.all(exact),
         exact_level=jnp.min(level),
         margin=jnp.min(margins),
-        weight_error=jnp.linalg.norm(err) / jnp.linalg.norm(w),
+        weight_error=weight_error,
         samples_to_1pct=measured,
         worst_samples_to_1pct=worst,
         guaranteed_samples_to_1pct=guaranteed,
