@@ -50,7 +50,6 @@ def _early_devices(argv) -> None:
 _early_devices(sys.argv)
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 from jax import lax  # noqa: E402
 
 # An experiment script, not library code: float64 rows need x64 switched on.
@@ -111,7 +110,7 @@ def _timed(key, draws, settings, chunk):
 def _stages(key, settings, count):
     """Cumulative programs on `count` draws of the first family, the best of three runs each."""
     s = settings
-    t = jnp.arange(s.n_samples, dtype=s.dtype) * s.dt
+    t = s.times()
     keys = draw_keys(key, 0, count)
     # One draw per step, as `pe_map` runs them.
     per_step = functools.partial(lax.map, batch_size=1)

@@ -70,6 +70,9 @@ _EXPORTS = {
     "exact_condition": ("._excitation.exact_condition", "exact_condition"),
     "pe_margin": ("._excitation.exact_condition", "pe_margin"),
     "exact_window_pe": ("._excitation.exact_arithmetic", "exact_window_pe"),
+    "exact_draw_pe": ("._excitation.exact_arithmetic", "exact_draw_pe"),
+    "needs_settling": ("._excitation.settle", "needs_settling"),
+    "settle_band": ("._excitation.settle", "settle_band"),
     "InputDesign": ("._excitation.design", "InputDesign"),
     "design_input": ("._excitation.design", "design_input"),
     "excitation_report": ("._excitation.design_compare", "excitation_report"),
@@ -205,6 +208,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.design_compare import excitation_figure as excitation_figure
     from ._excitation.design_compare import excitation_report as excitation_report
     from ._excitation.draw_metrics import draw_statistics as draw_statistics
+    from ._excitation.exact_arithmetic import exact_draw_pe as exact_draw_pe
     from ._excitation.exact_arithmetic import exact_window_pe as exact_window_pe
     from ._excitation.exact_condition import EventRows as EventRows
     from ._excitation.exact_condition import ExactCondition as ExactCondition
@@ -231,6 +235,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.pe import windowed_gram as windowed_gram
     from ._excitation.pe import windowed_pe_levels as windowed_pe_levels
     from ._excitation.pe import windowed_range as windowed_range
+    from ._excitation.settle import needs_settling as needs_settling
+    from ._excitation.settle import settle_band as settle_band
     from ._excitation.signals import chirp as chirp
     from ._excitation.signals import multisine as multisine
     from ._excitation.signals import sine as sine

@@ -289,3 +289,21 @@ def test_modular_settlement_on_map_draws_at_any_scale(family):
         for scale in (1.0, 2.0**-60, 2.0**60):
             got = pj.exact_window_pe(u * scale, r * scale, x0 * scale, window, stride=stride)
             np.testing.assert_array_equal(got, ref)
+
+
+@seed(DYADIC_SEED)
+@given(dyadic_cases(), st.randoms(use_true_random=False))
+def test_exact_draw_pe_is_every_window_in_any_order(case, rnd):
+    # The draw verdict stops at the first deficient window; the order it tries them in (here
+    # shuffled) cannot change it.
+    u, r, x0, window, stride = case
+    ref = exact_window_pe(u, r, x0, window, stride)
+    order = list(range(ref.size))
+    rnd.shuffle(order)
+    assert pj.exact_draw_pe(u, r, x0, window, stride=stride, order=order) == bool(np.all(ref))
+
+
+def test_exact_draw_pe_order_lists_every_window():
+    u = np.arange(10.0)
+    with pytest.raises(ValueError, match="each of the 6 windows once"):
+        pj.exact_draw_pe(u, [0.0], [0.0], 5, order=[0, 1, 2])

@@ -115,7 +115,7 @@ def _convergence_reference(H, u, r, w, W, s):
 
 def _case(settings, i):
     key = pj.draw_keys(jax.random.key(SEED), i, 1)[0]
-    t = jnp.arange(settings.n_samples) * settings.dt
+    t = settings.times()
     family = int(pj.draw_family(i, settings))
     draw = jax.jit(draw_case, static_argnums=(1, 3))
     return [np.asarray(a) for a in draw(key, family, t, settings.n_plays)]

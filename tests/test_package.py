@@ -185,6 +185,7 @@ def _figure_calls():
     settings = pj.make_settings(n_samples=100, families=["sine", "triangle"], dtype="float64")
     rng = np.random.default_rng(0)
     draws = {"rho": rng.uniform(0.1, 3, 20), "c1_normalised": rng.uniform(1e-12, 1e-3, 20),
+             "pe": rng.uniform(size=20) > 0.4,
              "family": np.repeat(list(settings.families), 10), "exact": rng.uniform(size=20) > 0.3,
              "sharper": rng.uniform(size=20) > 0.5, "weight_error": rng.uniform(1e-9, 1, 20),
              "margin": rng.uniform(1e-9, 1e-4, 20), "c1": rng.uniform(1e-9, 1e-3, 20),

@@ -72,6 +72,19 @@ def _rank_mod(A, p: int) -> int:
     return rank
 
 
+def _residues(u, r, x0, window: int, stride: int):
+    H = exact_play_outputs(u, r, x0)
+    T, n = H.shape
+    if not (1 <= window <= T and stride >= 1):
+        raise ValueError(f"`window` must be in [1, {T}] and `stride` >= 1, got {window}, {stride}")
+    residues = [np.array((H % p).tolist(), dtype=np.int64).reshape(T, n) for p in PRIMES]
+    return residues, range(0, T - window + 1, stride), n
+
+
+def _full_rank(residues, a: int, window: int, n: int) -> bool:
+    return any(_rank_mod(res[a : a + window], p) == n for res, p in zip(residues, PRIMES))
+
+
 def exact_window_pe(u, r, x0, window: int, *, stride: int = 1):
     """Per window: do the play outputs have full column rank in exact arithmetic?
 
@@ -81,12 +94,25 @@ def exact_window_pe(u, r, x0, window: int, *, stride: int = 1):
     **Returns:** (windows,) booleans: True is proved (full rank modulo a prime); False means
     rank deficient modulo both `PRIMES` (see the module docstring).
     """
-    H = exact_play_outputs(u, r, x0)
-    T, n = H.shape
-    if not (1 <= window <= T and stride >= 1):
-        raise ValueError(f"`window` must be in [1, {T}] and `stride` >= 1, got {window}, {stride}")
-    residues = [np.array((H % p).tolist(), dtype=np.int64).reshape(T, n) for p in PRIMES]
-    starts = range(0, T - window + 1, stride)
-    return np.array([
-        any(_rank_mod(res[a : a + window], p) == n for res, p in zip(residues, PRIMES)) for a in starts
-    ])
+    residues, starts, n = _residues(u, r, x0, window, stride)
+    return np.array([_full_rank(residues, a, window, n) for a in starts])
+
+
+def exact_draw_pe(u, r, x0, window: int, *, stride: int = 1, order=None) -> bool:
+    """Is every window full rank in exact arithmetic? `all(exact_window_pe(...))`, stopping at
+    the first deficient window.
+
+    **Arguments:** `u`, `r`, `x0`, `window` and `stride` as for [`exact_window_pe`][]; `order`,
+    the window indices in the order to try them (default first to last): putting the windows
+    most likely deficient first (the lowest float levels) makes a deficient draw cost one or two
+    ranks instead of one per window.
+
+    **Returns:** True when every window has full column rank (proved modulo a prime), False when
+    one is rank deficient modulo both `PRIMES`.
+    """
+    residues, starts, n = _residues(u, r, x0, window, stride)
+    starts = list(starts)
+    order = range(len(starts)) if order is None else [int(i) for i in order]
+    if sorted(order) != list(range(len(starts))):
+        raise ValueError(f"`order` must list each of the {len(starts)} windows once")
+    return all(_full_rank(residues, starts[i], window, n) for i in order)

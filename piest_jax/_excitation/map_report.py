@@ -5,6 +5,7 @@ import numpy as np
 from .condition import SHARPER_STATEMENT
 from .families import FAMILIES
 from .map_settings import MapSettings, numerical_tolerance
+from .settle import settle_band
 
 EXACT_STATEMENT = (
     "in every window, the event matrix [h_a; rho_k] has rank n, where rho_k = dh_k / du_k is 1 "
@@ -34,12 +35,14 @@ def _counts(rho, pe, sharper, old) -> dict:
 def summarise(result: dict, settings: MapSettings) -> dict:
     """The counts a map is judged by, overall and per family.
 
-    A draw is PE when its normalised level exceeds `numerical_tolerance(dtype)`. Theorem 1 of
-    the paper predicts `theorem_violations` (ρ >= 1 but not PE) = 0. The keys `sharper_holds`,
-    `sharper_holds_not_pe` and `sharper_fails_pe` count the exact condition
-    ([`exact_condition`][piest_jax.exact_condition], in every window), which is necessary and sufficient for PE: its
-    mismatches with the numerical verdict are draws whose raw Gram level sits at the tolerance
-    (see `docs/excitation_condition.md`). The `old_sharper_*` keys count the earlier sharper
+    A draw is PE when the map says so (`pe`: its normalised level exceeds
+    `numerical_tolerance(dtype)`, or, for a settled map, the rank in exact arithmetic where
+    floats cannot decide). Theorem 1 of the paper predicts `theorem_violations` (ρ >= 1 but not
+    PE) = 0. The keys `sharper_holds`, `sharper_holds_not_pe` and `sharper_fails_pe` count the
+    exact condition ([`exact_condition`][piest_jax.exact_condition], in every window), which is
+    necessary and sufficient for PE: without settling, its mismatches with the numerical verdict
+    are draws whose levels sit at float64's rounding (see `docs/excitation_condition.md`); a
+    settled map decides those exactly. The `old_sharper_*` keys count the earlier sharper
     condition ([`sharper_condition`][], necessary only).
 
     **Arguments:** `result` from [`pe_map`][]; its `settings`.
@@ -48,7 +51,7 @@ def summarise(result: dict, settings: MapSettings) -> dict:
     """
     tol = numerical_tolerance(settings.dtype)
     rho = np.asarray(result["rho"])
-    pe = np.asarray(result["c1_normalised"]) > tol
+    pe = np.asarray(result["pe"])
     sharper = np.asarray(result["exact"])
     old = np.asarray(result["sharper"])
     fam = np.asarray(result["family"])
@@ -77,6 +80,16 @@ def summarise(result: dict, settings: MapSettings) -> dict:
         "tolerance_meaning": "a draw is PE when min over windows of lambda_min/lambda_max > tolerance",
         **total,
         "theorem_violations_failing_sharper": int(((rho >= 1) & ~pe & ~sharper).sum()),
+        "settling": {
+            "statement": "draws whose event level is below band, or whose raw-Gram and exact-"
+            "condition verdicts disagree, decided by the play outputs' rank in exact arithmetic "
+            "(only when the map was run with settle)",
+            "done": "settled" in result,
+            "band": settle_band(settings.n_samples, settings.n_plays, settings.dtype),
+            "settled": int(np.sum(result.get("settled", 0))),
+            "settled_pe": int(np.sum(result.get("settled", False) & pe)),
+            "seconds": float(result.get("settle_seconds", 0.0)),
+        },
         "exact_condition": {
             "statement": EXACT_STATEMENT,
             "violations": total["sharper_holds_not_pe"] + total["sharper_fails_pe"],

@@ -34,6 +34,10 @@ class MapSettings(NamedTuple):
     dtype: str
     play_method: str = "auto"
 
+    def times(self):
+        """The sample times k·dt (T,) every draw of the map is drawn on, in the map's dtype."""
+        return jnp.arange(self.n_samples, dtype=jnp.dtype(self.dtype)) * jnp.asarray(self.dt, self.dtype)
+
 
 def make_settings(
     *,

@@ -19,7 +19,8 @@ from .. import _checks
 from .._progress import progress
 from .draw_metrics import draw_statistics
 from .families import draw_case
-from .map_settings import MapSettings
+from .map_settings import MapSettings, numerical_tolerance
+from .settle import settle_draws
 
 _DRAWS_PER_STEP = 1
 
@@ -45,22 +46,29 @@ def draw_family(index, settings: MapSettings):
     return np.asarray(settings.families)[np.asarray(index) % len(settings.families)]
 
 
-def _local_batch(keys, settings: MapSettings, loop: bool = True) -> dict:
-    """Statistics of a batch of keys whose first draw number is a multiple of the family count.
-
-    `loop`: one draw at a time (for CPUs), else one `vmap` over the batch (for accelerators).
-    """
+def _cases(keys, settings: MapSettings):
+    """(u, r, x0, w) of a batch of keys whose first draw number is a multiple of the family count."""
     s = settings
     nf = len(s.families)
-    t = jnp.arange(s.n_samples, dtype=jnp.dtype(s.dtype)) * jnp.asarray(s.dt, s.dtype)
+    t = s.times()
     by_family = keys.reshape(-1, nf)
     cases = [
         jax.vmap(lambda k, f=f: draw_case(k, f, t, s.n_plays))(by_family[:, j])
         for j, f in enumerate(s.families)
     ]
     # Interleave back so row i of the result is draw i of the batch.
-    u, r, x0, w = (jnp.stack(parts, axis=1).reshape((keys.shape[0],) + parts[0].shape[1:])
-                   for parts in zip(*cases))
+    return tuple(jnp.stack(parts, axis=1).reshape((keys.shape[0],) + parts[0].shape[1:])
+                 for parts in zip(*cases))
+
+
+def _local_batch(keys, settings: MapSettings, loop: bool = True, inputs: bool = False) -> dict:
+    """Statistics of a batch of keys whose first draw number is a multiple of the family count.
+
+    `loop`: one draw at a time (for CPUs), else one `vmap` over the batch (for accelerators).
+    `inputs`: also return the drawn `u` and `x0` (for settling; `thresholds` always come back).
+    """
+    s = settings
+    u, r, x0, w = _cases(keys, s)
     stats = functools.partial(draw_statistics, settings=s)
     if loop:
         # One draw at a time rather than one vmap over the batch: a draw's play outputs (T, n)
@@ -72,6 +80,8 @@ def _local_batch(keys, settings: MapSettings, loop: bool = True) -> dict:
     else:
         out = jax.vmap(stats)(u, r, x0, w)
     out["thresholds"] = r
+    if inputs:
+        out |= dict(u=u, x0=x0)
     return out
 
 
@@ -86,13 +96,13 @@ def mesh_sharding(devices) -> NamedSharding:
 
 
 @functools.lru_cache(maxsize=16)
-def _engine(settings: MapSettings, devices: tuple):
+def _engine(settings: MapSettings, devices: tuple, inputs: bool = False):
     sharding = mesh_sharding(devices)
     # shard_map keeps every device on its own slice of keys, also through the compiled play
     # kernel, which the automatic partitioner could not split.
     loop = all(d.platform == "cpu" for d in devices)
     fn = jax.shard_map(
-        functools.partial(_local_batch, settings=settings, loop=loop),
+        functools.partial(_local_batch, settings=settings, loop=loop, inputs=inputs),
         mesh=sharding.mesh,
         in_specs=sharding.spec,
         out_specs=sharding.spec,
@@ -108,6 +118,7 @@ def pe_map(
     chunk: int = 1000,
     start: int = 0,
     devices=None,
+    settle: bool = False,
     quiet: bool = False,
 ) -> dict:
     """Run the Monte Carlo map: `n_draws` draws, `chunk` at a time, sharded over `devices`.
@@ -126,10 +137,19 @@ def pe_map(
     - `start`: the number of the first draw, a multiple of the number of families: a long map
       can be split over runs or hosts (draws start, ..., start + n_draws − 1).
     - `devices`: the devices to shard over (default all of `jax.devices()`).
+    - `settle`: decide in exact arithmetic, on the host after each chunk, every draw whose
+      verdict floating point cannot decide ([`needs_settling`][piest_jax.needs_settling]: its
+      event level below [`settle_band`][piest_jax.settle_band], or its two float verdicts
+      disagreeing), from the very input floats the chunk drew ([`exact_draw_pe`][piest_jax.exact_draw_pe]);
+      about 25 ms a draw at T = 2000, and most draws that are not PE need it.
     - `quiet`: no progress bar.
 
     **Returns:** a dict of NumPy arrays with a leading axis of `n_draws` (see
-    [`draw_statistics`][]), plus `seconds`, the wall time including compilation.
+    [`draw_statistics`][]) and `pe` (the PE verdict), plus `seconds`, the wall time including
+    compilation and settling. `pe` is the raw Gram level above `numerical_tolerance`, or with
+    `settle` the rank in exact arithmetic where settled; `exact` is then also exact where the
+    event level is below the band; `settled` says which draws were settled and `settle_seconds`
+    how long it took.
     """
     key = _checks.prng_key(key)
     for name, v in (("n_draws", n_draws), ("chunk", chunk)):
@@ -144,16 +164,24 @@ def pe_map(
     devices = tuple(jax.devices() if devices is None else devices)
     unit = len(devices) * nf
     chunk = -(-min(chunk, n_draws) // unit) * unit
-    fn, sharding = _engine(settings, devices)
+    fn, sharding = _engine(settings, devices, settle)
     start_time = time.perf_counter()
-    parts = []
+    parts, settle_seconds = [], 0.0
     offsets = range(0, n_draws, chunk)
     for offset in progress(offsets, total=len(offsets), desc="PE map", quiet=quiet):
         # The last chunk is padded to the full size so every call reuses one compiled program.
         keys = jax.device_put(draw_keys(key, start + offset, chunk), sharding)
-        out = jax.device_get(fn(keys))
-        parts.append({k: v[: n_draws - offset] for k, v in out.items()})
+        out = {k: v[: n_draws - offset] for k, v in jax.device_get(fn(keys)).items()}
+        if settle:
+            t0 = time.perf_counter()
+            out = settle_draws(out, settings)
+            settle_seconds += time.perf_counter() - t0
+        parts.append(out)
     result = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     result["family"] = draw_family(start + np.arange(n_draws), settings)
+    if settle:
+        result["settle_seconds"] = settle_seconds
+    else:
+        result["pe"] = result["c1_normalised"] > numerical_tolerance(settings.dtype)
     result["seconds"] = time.perf_counter() - start_time
     return result
