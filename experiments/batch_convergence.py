@@ -99,9 +99,7 @@ def study(*, key, replicates: int) -> dict:
     jax.block_until_ready(stats)
     seconds = time.perf_counter() - t0
     settle = np.asarray(stats.settle_index).reshape(shape)
-    rel = np.linalg.norm(np.asarray(stats.final_error), axis=1) / np.linalg.norm(
-        weights[i_rep], axis=1
-    )
+    rel = np.linalg.norm(np.asarray(stats.final_error), axis=1) / np.linalg.norm(weights[i_rep], axis=1)
     rel = rel.reshape(shape)
     settled = settle < T
     # median over all draws, counting a draw that never settles as inf
@@ -145,20 +143,24 @@ def figure(rep: dict):
                 axes[k].semilogy(rho[sl], np.maximum(err[sl, j, s], 1e-16), label=lab, **style)
                 axes[2].plot(rho[sl], frac[sl, j, s], **style)
         axes[k].axvline(1.0, color="k", lw=0.6, ls=":")
-        axes[k].set(xlabel="Assumption 1 ratio ρ(T0 = 1 s)", ylabel="median ‖Ŵ − W‖/‖W‖ at 2 s",
-                    title=f"{kind} inputs, A = {min(AMPLITUDES):g}..{max(AMPLITUDES):g}")
+        axes[k].set(
+            xlabel="Assumption 1 ratio ρ(T0 = 1 s)",
+            ylabel="median ‖Ŵ − W‖/‖W‖ at 2 s",
+            title=f"{kind} inputs, A = {min(AMPLITUDES):g}..{max(AMPLITUDES):g}",
+        )
     axes[0].legend(fontsize=7)
     axes[2].axvline(1.0, color="k", lw=0.6, ls=":")
-    axes[2].set(xlabel="Assumption 1 ratio ρ(T0 = 1 s)", ylabel="fraction of weight draws",
-                title="within 1 % from some time on (o sine, s composite)")
+    axes[2].set(
+        xlabel="Assumption 1 ratio ρ(T0 = 1 s)",
+        ylabel="fraction of weight draws",
+        title="within 1 % from some time on (o sine, s composite)",
+    )
     fig.tight_layout()
     return fig
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--replicates", type=int, default=16, help="weight draws per setting")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (weights and noise)")
     p.add_argument("--out", type=Path, default=OUT, help="output folder")

@@ -68,26 +68,47 @@ def one(command: str, T: int, folder: Path) -> dict:
     np.savetxt(csv, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="", fmt="%.10g")
     del t, u, y
     out = folder / f"{command}_{T}"
-    code, secs, peak, err = _measured([sys.executable, "-m", "piest_jax", command, str(csv), "--out", str(out),
-                                       "--quiet"])
+    code, secs, peak, err = _measured(
+        [sys.executable, "-m", "piest_jax", command, str(csv), "--out", str(out), "--quiet"]
+    )
     csv.unlink()
     if code != 0:
         raise SystemExit(f"piest {command} on {T} samples: exit {code}: {err.strip()[-2000:]}")
     if command == "estimate":
         rep = json.loads((out / "estimate.json").read_text())
-        return dict(n_samples=T, seconds=secs, seconds_per_sample=secs / T, peak_rss_mb=peak,
-                    final_rmse=rep["final_rmse"], all_exciting=rep["pe"]["all_exciting"])
+        return dict(
+            n_samples=T,
+            seconds=secs,
+            seconds_per_sample=secs / T,
+            peak_rss_mb=peak,
+            final_rmse=rep["final_rmse"],
+            all_exciting=rep["pe"]["all_exciting"],
+        )
     if command == "diagnose":
         rep = json.loads((out / "report.json").read_text())
-        return dict(n_samples=T, seconds=secs, seconds_per_sample=secs / T, peak_rss_mb=peak,
-                    effects=rep["effects"], baseline_rmse=rep["baseline_rmse"],
-                    heldout_baseline_rmse=rep["heldout"]["baseline_rmse"], noise_std=rep["noise_std_estimate"])
+        return dict(
+            n_samples=T,
+            seconds=secs,
+            seconds_per_sample=secs / T,
+            peak_rss_mb=peak,
+            effects=rep["effects"],
+            baseline_rmse=rep["baseline_rmse"],
+            heldout_baseline_rmse=rep["heldout"]["baseline_rmse"],
+            noise_std=rep["noise_std_estimate"],
+        )
     fit = json.loads((out / "fit.json").read_text())
     r = np.asarray(fit["thresholds"])
-    row = dict(n_samples=T, seconds=secs, seconds_per_sample=secs / T, peak_rss_mb=peak,
-               n_plays=fit["model"]["n_plays"], n_lags=fit["model"]["n_lags"],
-               selection_samples=fit["selection"]["selection_samples"], thresholds=r.tolist(),
-               rmse=fit["rmse"])
+    row = dict(
+        n_samples=T,
+        seconds=secs,
+        seconds_per_sample=secs / T,
+        peak_rss_mb=peak,
+        n_plays=fit["model"]["n_plays"],
+        n_lags=fit["model"]["n_lags"],
+        selection_samples=fit["selection"]["selection_samples"],
+        thresholds=r.tolist(),
+        rmse=fit["rmse"],
+    )
     if len(r) == len(R_TRUE):
         row["max_threshold_error_rel"] = float(np.max(np.abs(r[1:] - R_TRUE[1:]) / np.array(R_TRUE[1:])))
     return row
@@ -105,8 +126,11 @@ def main(argv=None):
         for T in sorted(int(float(s)) for s in args.lengths.split(",")):
             rows.append(one(args.command, T, Path(d)))
             print(json.dumps(rows[-1]), flush=True)
-    res = dict(machine=dict(cpus=os.cpu_count(), platform=platform.platform(), load_average=os.getloadavg()),
-               command=f"piest {args.command} rec.csv --out DIR --quiet", runs=rows)
+    res = dict(
+        machine=dict(cpus=os.cpu_count(), platform=platform.platform(), load_average=os.getloadavg()),
+        command=f"piest {args.command} rec.csv --out DIR --quiet",
+        runs=rows,
+    )
     by_T = {r["n_samples"]: r for r in rows}
     if 100_000 in by_T and 1_000_000 in by_T:
         res["time_ratio_1e5_to_1e6"] = by_T[1_000_000]["seconds"] / by_T[100_000]["seconds"]

@@ -1,6 +1,6 @@
 """Wall time of `piest diagnose` on a 10^4-sample record (compilation included), as JSON.
 
-    python experiments/bench_diagnose.py   ->  experiments/results/bench_diagnose.json
+python experiments/bench_diagnose.py   ->  experiments/results/bench_diagnose.json
 """
 
 import json
@@ -25,9 +25,16 @@ def run():
         rc = pj.run_cli(["diagnose", str(p), "--out", str(Path(d) / "out"), "--quiet"])
         secs = time.perf_counter() - t0
         rep = json.loads((Path(d) / "out" / "report.json").read_text())
-    res = dict(n_samples=10_000, seconds=secs, rc=rc, cpus=os.cpu_count(), load_average=os.getloadavg(),
-               effects=rep["effects"],
-               hidden=truth["effects"], note="one process, compilation included")
+    res = dict(
+        n_samples=10_000,
+        seconds=secs,
+        rc=rc,
+        cpus=os.cpu_count(),
+        load_average=os.getloadavg(),
+        effects=rep["effects"],
+        hidden=truth["effects"],
+        note="one process, compilation included",
+    )
     out = Path(__file__).parent / "results" / "bench_diagnose.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=1))

@@ -54,9 +54,14 @@ def main():
             for m in warm:
                 warm[m].append(timed(lambda: fit(m)))
         w_none, w_cov = min(warm[None]), min(warm["newey-west"])
-        r = {"first_none": first_none, "first_covariance": first_cov, "warm_none": w_none,
-             "warm_covariance": w_cov, "ratio_warm": w_cov / w_none,
-             "ratio_cold": (first_none + first_cov - w_cov) / first_none}
+        r = {
+            "first_none": first_none,
+            "first_covariance": first_cov,
+            "warm_none": w_none,
+            "warm_covariance": w_cov,
+            "ratio_warm": w_cov / w_none,
+            "ratio_cold": (first_none + first_cov - w_cov) / first_none,
+        }
         results[f"lags={n_lags}"] = r
         print(n_lags, {k: round(v, 3) for k, v in r.items()}, flush=True)
     OUT.mkdir(exist_ok=True)

@@ -92,8 +92,10 @@ def check(rng, dtype):
             y = banks[m].astype(np.float64) @ np.asarray(w, np.float64)
             row[f"{m}_relative_error"] = float(np.linalg.norm(y - ref) / np.linalg.norm(ref))
         rows.append(row)
-        print(f"check T={T}: bitwise equal {row['plays_equal_bitwise']}, "
-              f"scan {row['scan_relative_error']:.1e}, associative {row['associative_relative_error']:.1e}")
+        print(
+            f"check T={T}: bitwise equal {row['plays_equal_bitwise']}, "
+            f"scan {row['scan_relative_error']:.1e}, associative {row['associative_relative_error']:.1e}"
+        )
     return rows
 
 
@@ -109,8 +111,15 @@ def _sweep(label, sizes, make, budget, repeats):
             fn, arg, work = make(size, m)
             sec, times = _median_seconds(fn, arg, repeats)
             last = (size, sec)
-            rows.append({"method": m, "size": size, "seconds": sec, "all_seconds": times,
-                         "g_element_steps_per_s": work / sec / 1e9})
+            rows.append(
+                {
+                    "method": m,
+                    "size": size,
+                    "seconds": sec,
+                    "all_seconds": times,
+                    "g_element_steps_per_s": work / sec / 1e9,
+                }
+            )
             print(f"{label} {m:11s} size {size:>8d}: {sec * 1e3:9.2f} ms, {work / sec / 1e9:8.3f} G/s")
             del fn, arg
     return rows, skipped
@@ -150,8 +159,7 @@ def main() -> None:
         from piest_jax import Creep
 
         # Time constants of 30, 300 and 3000 samples, the creep of a record sampled at 1 kHz.
-        cr = Creep(jnp.asarray([0.03, 0.3, 3.0], dtype), jnp.asarray([1.0, -0.5, 0.2], dtype), 1e-3,
-                   method=m)
+        cr = Creep(jnp.asarray([0.03, 0.3, 3.0], dtype), jnp.asarray([1.0, -0.5, 0.2], dtype), 1e-3, method=m)
         return eqx.filter_jit(cr.states), _signal(rng, (T,), dtype), T * N_LAGS
 
     out = {
@@ -166,8 +174,7 @@ def main() -> None:
         "repeats": args.repeats,
         "check": check(rng, dtype),
     }
-    for label, sizes, make in (("single", singles, single), ("batch", batches, batch),
-                               ("lags", lag_sizes, lags)):
+    for label, sizes, make in (("single", singles, single), ("batch", batches, batch), ("lags", lag_sizes, lags)):
         rows, skipped = _sweep(label, sizes, make, args.budget, args.repeats)
         out[label] = rows
         out[f"{label}_skipped"] = skipped

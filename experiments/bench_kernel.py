@@ -247,9 +247,7 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
         "single_grad_kernel_vs_jax_scan": s["jax_scan_grad"] / s["kernel_grad"],
         "batch_grad_kernel_vs_jax_scan": b["jax_scan_grad"] / b["kernel_grad"],
     }
-    met = {
-        k: (ratios[k] <= v if k.endswith("_max") else ratios[k] >= v) for k, v in TARGETS.items()
-    }
+    met = {k: (ratios[k] <= v if k.endswith("_max") else ratios[k] >= v) for k, v in TARGETS.items()}
     import numba
 
     results["ratios"] = ratios

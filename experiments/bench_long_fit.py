@@ -35,8 +35,7 @@ def record(T: int):
     import piest_jax as pj
 
     t = np.arange(T) / RATE
-    u = np.sin(2 * np.pi * 20 * t) * (0.7 + 0.3 * np.sin(2 * np.pi * 1.3 * t + 0.5)) \
-        + 0.3 * np.sin(2 * np.pi * 53 * t)
+    u = np.sin(2 * np.pi * 20 * t) * (0.7 + 0.3 * np.sin(2 * np.pi * 1.3 * t + 0.5)) + 0.3 * np.sin(2 * np.pi * 53 * t)
     y = np.asarray(pj.PIOperator(np.array(R_TRUE), np.array(W_TRUE), u[0])(u))
     return t, u, y + SIGMA * np.random.default_rng(0).standard_normal(T)
 
@@ -106,13 +105,16 @@ def main(argv=None):
         return
     rows = []
     for T in (int(float(s)) for s in args.lengths.split(",")):
-        out = subprocess.run([sys.executable, __file__, "--one", str(T)], capture_output=True,
-                             text=True, check=True)
+        out = subprocess.run([sys.executable, __file__, "--one", str(T)], capture_output=True, text=True, check=True)
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
         print(json.dumps(rows[-1]), flush=True)
     res = dict(
-        machine=dict(cpus=os.cpu_count(), platform=platform.platform(),
-                     processor=platform.processor(), load_average=os.getloadavg()),
+        machine=dict(
+            cpus=os.cpu_count(),
+            platform=platform.platform(),
+            processor=platform.processor(),
+            load_average=os.getloadavg(),
+        ),
         record=dict(thresholds=R_TRUE, weights=W_TRUE, noise_sigma=SIGMA, rate_hz=RATE),
         fits=rows,
     )

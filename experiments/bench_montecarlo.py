@@ -79,9 +79,7 @@ def _load() -> list[float]:
 
 
 def _settings(T, n, dtype, method):
-    return make_settings(
-        n_samples=T, n_plays=n, window=T // 5, stride=T // 50, dtype=dtype, play_method=method
-    )
+    return make_settings(n_samples=T, n_plays=n, window=T // 5, stride=T // 50, dtype=dtype, play_method=method)
 
 
 def _clock(fn):
@@ -89,8 +87,7 @@ def _clock(fn):
     c0, t0 = time.process_time(), time.perf_counter()
     out = fn()
     seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
-    return out, {"seconds": seconds, "cpu_seconds": cpu, "load_before": load_before,
-                 "load_after": _load()}
+    return out, {"seconds": seconds, "cpu_seconds": cpu, "load_before": load_before, "load_after": _load()}
 
 
 def _timed(key, draws, settings, chunk):
@@ -141,8 +138,9 @@ def _stages(key, settings, count):
     rows = []
     for name, fn in programs.items():
         jax.block_until_ready(fn(keys))
-        best = min((_clock(lambda: jax.block_until_ready(fn(keys)))[1] for _ in range(3)),
-                   key=lambda c: c["cpu_seconds"])
+        best = min(
+            (_clock(lambda: jax.block_until_ready(fn(keys)))[1] for _ in range(3)), key=lambda c: c["cpu_seconds"]
+        )
         rows.append({"stage": name, "draws": count, **best})
         print(f"stage {name}: {best['seconds']:.2f} s wall, {best['cpu_seconds']:.2f} s CPU")
     return rows
@@ -153,8 +151,9 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="small sizes: a smoke test")
     p.add_argument("--dtype", default="float64", choices=("float32", "float64"))
     p.add_argument("--play-method", default="auto", choices=("scan", "associative", "kernel", "auto"))
-    p.add_argument("--no-stages", action="store_true",
-                   help="skip the per-stage rows (one draw per step: slow on accelerators)")
+    p.add_argument(
+        "--no-stages", action="store_true", help="skip the per-stage rows (one draw per step: slow on accelerators)"
+    )
     p.add_argument("--chunk", type=int, default=1000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--host-devices", type=int, help="CPU devices to shard over (read at start)")
@@ -183,18 +182,31 @@ def main(argv=None) -> int:
     row["first_call_seconds"] = first["seconds"]
     row["windows_per_draw"] = (T - s.window) // s.stride + 1
     summary = summarise(res, s)
-    row["map"] = {k: summary[k] for k in (
-        "n", "tolerance", "assumption_holds", "pe", "theorem_violations",
-        "theorem_violations_failing_sharper", "pe_below_assumption",
-        "pe_fraction_below_assumption", "sharper_holds", "sharper_holds_not_pe",
-        "sharper_fails_pe")}
+    row["map"] = {
+        k: summary[k]
+        for k in (
+            "n",
+            "tolerance",
+            "assumption_holds",
+            "pe",
+            "theorem_violations",
+            "theorem_violations_failing_sharper",
+            "pe_below_assumption",
+            "pe_fraction_below_assumption",
+            "sharper_holds",
+            "sharper_holds_not_pe",
+            "sharper_fails_pe",
+        )
+    }
     row["map"]["sharper_condition"] = {
         k: summary["sharper_condition"][k] for k in ("violations", "holds_but_not_pe", "fails_but_pe")
     }
     report["headline"] = row
-    print(f"headline: {draws} x {T} x {n} in {row['seconds']:.2f} s "
-          f"({row['draws_per_s']:.0f} draws/s, {row['cpu_seconds']:.1f} s CPU; "
-          f"first call {first['seconds']:.1f} s; load {row['load_after']})")
+    print(
+        f"headline: {draws} x {T} x {n} in {row['seconds']:.2f} s "
+        f"({row['draws_per_s']:.0f} draws/s, {row['cpu_seconds']:.1f} s CPU; "
+        f"first call {first['seconds']:.1f} s; load {row['load_after']})"
+    )
 
     if not args.no_stages:
         report["stages"] = _stages(key, s, chunk)

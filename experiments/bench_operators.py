@@ -235,18 +235,12 @@ def main(argv=None) -> int:
                         f"{r_['elements_per_s'] / 1e6:10.1f} M elem/s  "
                         f"x{r_['speedup_vs_numpy']:8.1f} vs NumPy"
                         + (f"  x{r_['speedup_vs_numba']:6.2f} vs Numba" if nb else "")
-                        + (
-                            f"  grad {r_['grad_elements_per_s'] / 1e6:8.1f} M elem/s"
-                            if m in grads
-                            else ""
-                        ),
+                        + (f"  grad {r_['grad_elements_per_s'] / 1e6:8.1f} M elem/s" if m in grads else ""),
                         flush=True,
                     )
     result = {
         "config": {
-            "sizes": {
-                k: {"signals": b, "samples": t, "plays": n} for k, (b, t, n) in sizes.items()
-            },
+            "sizes": {k: {"signals": b, "samples": t, "plays": n} for k, (b, t, n) in sizes.items()},
             "quick": args.quick,
             "repeats": args.repeats,
             "timing": "min over repeats after a warm-up call, block_until_ready",

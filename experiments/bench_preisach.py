@@ -46,12 +46,18 @@ def main():
                 t0 = time.perf_counter()
                 pj.fit_preisach(u, y, n_widths=K, n_centres=M)
                 times.append(time.perf_counter() - t0)
-            rows.append({"samples": T, "grid": [K, M], "seconds": min(times),
-                         "first_call_seconds": first, "rmse": fit.rmse,
-                         "smoothness": fit.smoothness})
+            rows.append(
+                {
+                    "samples": T,
+                    "grid": [K, M],
+                    "seconds": min(times),
+                    "first_call_seconds": first,
+                    "rmse": fit.rmse,
+                    "smoothness": fit.smoothness,
+                }
+            )
             print(rows[-1], flush=True)
-    pj.write_json(OUT, {"cpu_count": os.cpu_count(), "load_average": os.getloadavg(),
-                        "rows": rows})
+    pj.write_json(OUT, {"cpu_count": os.cpu_count(), "load_average": os.getloadavg(), "rows": rows})
 
 
 if __name__ == "__main__":

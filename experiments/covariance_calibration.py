@@ -80,8 +80,15 @@ def run(draws: int, T: int = 300):
                 "band_coverage_measurement": float(np.mean(new_cover)),
                 "seconds": time.perf_counter() - start,
             }
-            print(kind, method, np.round(se.mean(axis=0) / spread, 3), np.round(covered.mean(axis=0), 3),
-                  "bands:", round(float(np.mean(mean_cover)), 3), round(float(np.mean(new_cover)), 3))
+            print(
+                kind,
+                method,
+                np.round(se.mean(axis=0) / spread, 3),
+                np.round(covered.mean(axis=0), 3),
+                "bands:",
+                round(float(np.mean(mean_cover)), 3),
+                round(float(np.mean(new_cover)), 3),
+            )
     return results
 
 
@@ -100,15 +107,18 @@ def figure(results):
         ax.axhspan(0.8, 1.25, color="0.9", zorder=0, label="0.8-1.25")
         ax.axhline(1.0, color="k", lw=0.6)
         ax.set_xticks(np.arange(len(r["parameters"])), r["parameters"], rotation=45, ha="right", fontsize=8)
-        ax.set(title=f"{'white noise' if kind == 'white' else 'AR(1) noise, rho = 0.95'}",
-               ylabel="predicted std error / observed spread")
+        ax.set(
+            title=f"{'white noise' if kind == 'white' else 'AR(1) noise, rho = 0.95'}",
+            ylabel="predicted std error / observed spread",
+        )
         ax.legend(fontsize=8)
     # The bands' coverage: mean prediction (noiseless output) and new measurement, per noise.
     ax = axes[2]
     labels = [f"{k}\n{b}" for k in ("white", "ar1") for b in ("mean", "measurement")]
     for i, method in enumerate(METHODS):
-        cov = [results[f"{k}/{method}"][f"band_coverage_{b}"] for k in ("white", "ar1")
-               for b in ("mean", "measurement")]
+        cov = [
+            results[f"{k}/{method}"][f"band_coverage_{b}"] for k in ("white", "ar1") for b in ("mean", "measurement")
+        ]
         ax.bar(np.arange(4) + (i - 0.5) * 0.35, cov, width=0.35, label=method)
     ax.axhspan(0.90, 0.98, color="0.9", zorder=0, label="0.90-0.98")
     ax.axhline(0.95, color="k", lw=0.6)
@@ -125,9 +135,10 @@ def main():
     args = p.parse_args()
     results = run(args.draws)
     OUT.mkdir(exist_ok=True)
-    pj.write_json(OUT / "covariance_calibration.json", {"draws": args.draws, "samples": 300,
-                                                        "noise_sd_fraction_of_range": 0.01,
-                                                        "results": results})
+    pj.write_json(
+        OUT / "covariance_calibration.json",
+        {"draws": args.draws, "samples": 300, "noise_sd_fraction_of_range": 0.01, "results": results},
+    )
     pj.save_figure(figure(results), OUT / "covariance_calibration.png", dpi=110)
 
 

@@ -24,8 +24,13 @@ jax.config.update("jax_enable_x64", True)
 
 import piest_jax as pj  # noqa: E402
 
-PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", "asymmetry"),
-         ("initial_state", "rate_dependence"), ("rate_dependence", "offset_drift")]
+PAIRS = [
+    ("delay", "asymmetry"),
+    ("linear_dynamics", "offset_drift"),
+    ("creep", "asymmetry"),
+    ("initial_state", "rate_dependence"),
+    ("rate_dependence", "offset_drift"),
+]
 
 
 def jobs(per_class, pairs_per_class):
@@ -53,11 +58,28 @@ def run(args, shard, n_shards, save):
         # the whole record.
         d = pj.diagnose(rec)
         rmse, rmse0 = d.final_rmse, d.baseline_rmse
-        rows.append(dict(hidden=list(cls), named=d.effects, pruned=d.pruned, forms=truth["forms"],
-                         noise_std=truth["noise_std"], baseline_rmse=rmse0, final_rmse=rmse,
-                         noise_est=d.noise_std_estimate, seconds=time.time() - t1))
-        print(cls, truth["forms"], "->", d.effects, f"rmse/noise={rmse / truth['noise_std']:.2f}",
-              f"{time.time() - t1:.0f}s", flush=True)
+        rows.append(
+            dict(
+                hidden=list(cls),
+                named=d.effects,
+                pruned=d.pruned,
+                forms=truth["forms"],
+                noise_std=truth["noise_std"],
+                baseline_rmse=rmse0,
+                final_rmse=rmse,
+                noise_est=d.noise_std_estimate,
+                seconds=time.time() - t1,
+            )
+        )
+        print(
+            cls,
+            truth["forms"],
+            "->",
+            d.effects,
+            f"rmse/noise={rmse / truth['noise_std']:.2f}",
+            f"{time.time() - t1:.0f}s",
+            flush=True,
+        )
         save(rows, time.time() - t0)
     return rows
 
@@ -73,9 +95,13 @@ def summarise(rows):
         hidden = [] if h == "none" else h.split("+")
         sel = [r for r in rows if "+".join(r["hidden"]) == ("" if h == "none" else h)]
         right = [r for r in sel if set(r["named"]) == set(hidden)]
-        stats[h] = dict(n=len(sel), right=len(right), share=len(right) / len(sel),
-                        rmse_ok=sum(r["final_rmse"] <= 1.5 * r["noise_std"] for r in right),
-                        named=dict(c))
+        stats[h] = dict(
+            n=len(sel),
+            right=len(right),
+            share=len(right) / len(sel),
+            rmse_ok=sum(r["final_rmse"] <= 1.5 * r["noise_std"] for r in right),
+            named=dict(c),
+        )
     return stats
 
 
@@ -85,15 +111,20 @@ def totals(rows):
     for label, k in (("no_effect", 0), ("single", 1), ("pair", 2)):
         sel = [r for r in rows if len(r["hidden"]) == k]
         right = [r for r in sel if set(r["named"]) == set(r["hidden"])]
-        out[label] = dict(n=len(sel), right=len(right),
-                          rmse_within_1_5_noise=sum(r["final_rmse"] <= 1.5 * r["noise_std"] for r in right))
+        out[label] = dict(
+            n=len(sel),
+            right=len(right),
+            rmse_within_1_5_noise=sum(r["final_rmse"] <= 1.5 * r["noise_std"] for r in right),
+        )
     return out
 
 
 def markdown(stats):
     cols = ["none", *pj.EFFECTS]
-    lines = ["| hidden \\ named first | " + " | ".join(cols) + " | right | RMSE ≤ 1.5σ when right |",
-             "|---" * (len(cols) + 3) + "|"]
+    lines = [
+        "| hidden \\ named first | " + " | ".join(cols) + " | right | RMSE ≤ 1.5σ when right |",
+        "|---" * (len(cols) + 3) + "|",
+    ]
     for h, s in stats.items():
         firsts = Counter()
         for got, k in s["named"].items():
@@ -109,8 +140,9 @@ def main():
     ap.add_argument("--pairs", type=int, default=2)
     ap.add_argument("--samples", type=int, default=500)
     ap.add_argument("--seed", type=int, default=2024)
-    ap.add_argument("--noise-ar", type=float, default=0.0,
-                    help="lag-one autocorrelation of the sensor noise (AR(1); 0 is white)")
+    ap.add_argument(
+        "--noise-ar", type=float, default=0.0, help="lag-one autocorrelation of the sensor noise (AR(1); 0 is white)"
+    )
     ap.add_argument("--shard", default="0/1", help="i/k: run every k-th record starting at i")
     ap.add_argument("--merge", nargs="*", help="combine these shard files into --out and stop")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "diagnose_confusion.json"))
@@ -121,10 +153,13 @@ def main():
     def save(rows, secs):
         stats = summarise(rows)
         md = markdown(stats)
-        meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed,
-                    noise_ar=a.noise_ar)
-        out.write_text(json.dumps(dict(**meta, seconds=secs, n_records=len(rows), totals=totals(rows), stats=stats,
-                                       rows=rows, table=md), indent=1))
+        meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed, noise_ar=a.noise_ar)
+        out.write_text(
+            json.dumps(
+                dict(**meta, seconds=secs, n_records=len(rows), totals=totals(rows), stats=stats, rows=rows, table=md),
+                indent=1,
+            )
+        )
         return md
 
     if a.merge is not None:

@@ -44,13 +44,21 @@ def main(argv=None):
     for T in lengths:
         for ar in (0.0, 0.8):
             for seed in range(args.seeds if T < lengths[-1] or len(lengths) == 1 else max(1, args.seeds - 1)):
-                rec, truth = pj.hidden_effect_record((), key=jax.random.PRNGKey(1000 + seed), n_samples=T,
-                                                     noise_ar=ar)
+                rec, truth = pj.hidden_effect_record((), key=jax.random.PRNGKey(1000 + seed), n_samples=T, noise_ar=ar)
                 t0 = time.perf_counter()
                 d = pj.diagnose(rec, quiet=True)
-                rows.append(dict(n_samples=T, noise_ar=ar, seed=1000 + seed, effects=d.effects,
-                                 seconds=time.perf_counter() - t0, noise_std=truth["noise_std"],
-                                 final_rmse=d.final_rmse, heldout_baseline_rmse=d.heldout_baseline_rmse))
+                rows.append(
+                    dict(
+                        n_samples=T,
+                        noise_ar=ar,
+                        seed=1000 + seed,
+                        effects=d.effects,
+                        seconds=time.perf_counter() - t0,
+                        noise_std=truth["noise_std"],
+                        final_rmse=d.final_rmse,
+                        heldout_baseline_rmse=d.heldout_baseline_rmse,
+                    )
+                )
                 print(json.dumps(rows[-1]), flush=True)
     named_nothing = sum(not r["effects"] for r in rows)
     res = dict(records=len(rows), named_nothing=named_nothing, runs=rows)
@@ -65,18 +73,30 @@ def hidden(args, lengths):
     for T in lengths:
         for effect in names:
             for seed in range(args.seeds):
-                rec, truth = pj.hidden_effect_record((effect,), key=jax.random.PRNGKey(2000 + seed), n_samples=T,
-                                                     noise_ar=args.noise_ar)
+                rec, truth = pj.hidden_effect_record(
+                    (effect,), key=jax.random.PRNGKey(2000 + seed), n_samples=T, noise_ar=args.noise_ar
+                )
                 t0 = time.perf_counter()
                 d = pj.diagnose(rec, quiet=True)
-                rows.append(dict(n_samples=T, hidden=effect, seed=2000 + seed, effects=d.effects,
-                                 right=list(d.effects) == [effect], seconds=time.perf_counter() - t0,
-                                 noise_std=truth["noise_std"], final_rmse=d.final_rmse,
-                                 heldout_baseline_rmse=d.heldout_baseline_rmse))
+                rows.append(
+                    dict(
+                        n_samples=T,
+                        hidden=effect,
+                        seed=2000 + seed,
+                        effects=d.effects,
+                        right=list(d.effects) == [effect],
+                        seconds=time.perf_counter() - t0,
+                        noise_std=truth["noise_std"],
+                        final_rmse=d.final_rmse,
+                        heldout_baseline_rmse=d.heldout_baseline_rmse,
+                    )
+                )
                 print(json.dumps(rows[-1]), flush=True)
     right = sum(r["right"] for r in rows)
-    by_length = {T: f"{sum(r['right'] for r in rows if r['n_samples'] == T)}/"
-                 f"{sum(r['n_samples'] == T for r in rows)}" for T in lengths}
+    by_length = {
+        T: f"{sum(r['right'] for r in rows if r['n_samples'] == T)}/{sum(r['n_samples'] == T for r in rows)}"
+        for T in lengths
+    }
     res = dict(records=len(rows), right=right, right_by_length=by_length, noise_ar=args.noise_ar, runs=rows)
     out = args.out or str(OUT.with_name("diagnose_hidden_lengths.json"))
     Path(out).parent.mkdir(parents=True, exist_ok=True)

@@ -34,10 +34,28 @@ def one(name, data, validate=None):
     rc = pj.run_cli(argv)
     secs = time.time() - t0
     rep = json.loads((out / "report.json").read_text())
-    keep = {k: rep.get(k) for k in ("effects", "baseline_rmse", "final_rmse", "noise_std_estimate",
-                                   "heldout", "validation", "n_samples", "search_step")}
-    keep["rounds"] = [{"best": r["best"], "named": r["named"], "current_heldout_rmse": r["current_heldout_rmse"],
-                       "candidates": r["candidates"]} for r in rep["rounds"]]
+    keep = {
+        k: rep.get(k)
+        for k in (
+            "effects",
+            "baseline_rmse",
+            "final_rmse",
+            "noise_std_estimate",
+            "heldout",
+            "validation",
+            "n_samples",
+            "search_step",
+        )
+    }
+    keep["rounds"] = [
+        {
+            "best": r["best"],
+            "named": r["named"],
+            "current_heldout_rmse": r["current_heldout_rmse"],
+            "candidates": r["candidates"],
+        }
+        for r in rep["rounds"]
+    ]
     keep["where_structured"] = [w for w in rep["where"] if w["structured"]]
     keep.update(rc=rc, seconds=secs)
     return keep
@@ -54,9 +72,21 @@ def main_():
     (RESULTS / "diagnose_real_data.json").write_text(json.dumps(res, indent=1))
     for k, v in res.items():
         val = v.get("validation") or {}
-        print(k, v["effects"], "rmse", round(v["baseline_rmse"], 4), "->", round(v["final_rmse"], 4),
-              "noise", round(v["noise_std_estimate"], 4),
-              "validation", val.get("baseline_rmse"), "->", val.get("final_rmse"), f"{v['seconds']:.1f}s")
+        print(
+            k,
+            v["effects"],
+            "rmse",
+            round(v["baseline_rmse"], 4),
+            "->",
+            round(v["final_rmse"], 4),
+            "noise",
+            round(v["noise_std_estimate"], 4),
+            "validation",
+            val.get("baseline_rmse"),
+            "->",
+            val.get("final_rmse"),
+            f"{v['seconds']:.1f}s",
+        )
 
 
 if __name__ == "__main__":

@@ -33,8 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from reference import exact_window_pe as rational_window_pe  # noqa: E402  (the tests' reference)
 
 OUT = Path(__file__).parent / "results" / "exact_condition_study.json"
-SUMMED = ("draws", "settled", "pe", "exact_condition_holds", "checked", "seconds",
-          "settle_seconds", "check_seconds")
+SUMMED = ("draws", "settled", "pe", "exact_condition_holds", "checked", "seconds", "settle_seconds", "check_seconds")
 
 
 def draw(settings, key, i):
@@ -45,8 +44,11 @@ def draw(settings, key, i):
 
 
 def study(args) -> dict:
-    chosen = {} if args.families == "default" else {
-        "families": pj.INPUT_FAMILIES if args.families == "all" else tuple(args.families.split(","))}
+    chosen = (
+        {}
+        if args.families == "default"
+        else {"families": pj.INPUT_FAMILIES if args.families == "all" else tuple(args.families.split(","))}
+    )
     s = pj.make_settings(n_samples=args.samples, window=args.window, dtype="float64", **chosen)
     key = jax.random.key(args.seed)
     res = pj.pe_map(key, args.draws, s, start=args.start, settle=True, quiet=True)
@@ -58,10 +60,17 @@ def study(args) -> dict:
     rows = []
     overturned = np.flatnonzero(settled & ((float_exact != pe) | (raw_pe != pe)))
     for i in overturned:
-        rows.append(dict(draw=args.start + int(i), family=pj.INPUT_FAMILIES[int(res["family"][i])],
-                         pe=bool(pe[i]), float_exact_condition=bool(float_exact[i]),
-                         raw_gram_pe=bool(raw_pe[i]), event_level=float(res["exact_level"][i]),
-                         raw_level=float(res["c1_normalised"][i])))
+        rows.append(
+            dict(
+                draw=args.start + int(i),
+                family=pj.INPUT_FAMILIES[int(res["family"][i])],
+                pe=bool(pe[i]),
+                float_exact_condition=bool(float_exact[i]),
+                raw_gram_pe=bool(raw_pe[i]),
+                event_level=float(res["exact_level"][i]),
+                raw_level=float(res["c1_normalised"][i]),
+            )
+        )
     rng = np.random.default_rng(args.seed + args.start)
     unsettled = np.flatnonzero(~settled)
     checks = np.sort(rng.choice(unsettled, min(args.check, unsettled.size), replace=False))
@@ -70,30 +79,52 @@ def study(args) -> dict:
     for i in checks:
         u, r, x0, _ = draw(s, key, args.start + int(i))
         truth = bool(np.all(rational_window_pe(u, r, x0, s.window, s.stride)))
-        check_rows.append(dict(draw=args.start + int(i), pe_exact_rational=truth,
-                               map_pe=bool(pe[i]), map_exact_condition=bool(res["exact"][i])))
+        check_rows.append(
+            dict(
+                draw=args.start + int(i),
+                pe_exact_rational=truth,
+                map_pe=bool(pe[i]),
+                map_exact_condition=bool(res["exact"][i]),
+            )
+        )
     deficient = res["exact_level"][settled & ~pe]
     full = res["exact_level"][settled & pe]
     return dict(
-        seed=args.seed, start=args.start, draws=args.draws, settings=s._asdict(), tolerance=tol,
-        band=band, settled=int(settled.sum()), pe=int(pe.sum()),
+        seed=args.seed,
+        start=args.start,
+        draws=args.draws,
+        settings=s._asdict(),
+        tolerance=tol,
+        band=band,
+        settled=int(settled.sum()),
+        pe=int(pe.sum()),
         exact_condition_holds=int(res["exact"].sum()),
-        exact_condition_mismatches=dict(holds_but_not_pe=summary["sharper_holds_not_pe"],
-                                        fails_but_pe=summary["sharper_fails_pe"]),
+        exact_condition_mismatches=dict(
+            holds_but_not_pe=summary["sharper_holds_not_pe"], fails_but_pe=summary["sharper_fails_pe"]
+        ),
         float_exact_condition_overturned=int((settled & (float_exact != pe)).sum()),
         raw_gram_overturned=int((settled & (raw_pe != pe)).sum()),
         largest_event_level_not_pe=float(deficient.max()) if deficient.size else None,
         smallest_event_level_settled_pe=float(full.min()) if full.size else None,
         checked=len(check_rows),
-        check_mismatches=sum(r["pe_exact_rational"] != r["map_pe"]
-                             or r["pe_exact_rational"] != r["map_exact_condition"] for r in check_rows),
-        seconds=float(res["seconds"]), settle_seconds=float(res["settle_seconds"]),
+        check_mismatches=sum(
+            r["pe_exact_rational"] != r["map_pe"] or r["pe_exact_rational"] != r["map_exact_condition"]
+            for r in check_rows
+        ),
+        seconds=float(res["seconds"]),
+        settle_seconds=float(res["settle_seconds"]),
         check_seconds=time.perf_counter() - t0,
-        per_family={f: dict(draws=int((res["family"] == j).sum()),
-                            settled=int((settled & (res["family"] == j)).sum()),
-                            pe=int((pe & (res["family"] == j)).sum()))
-                    for j, f in enumerate(pj.INPUT_FAMILIES) if j in s.families},
-        overturned=rows, checks=check_rows,
+        per_family={
+            f: dict(
+                draws=int((res["family"] == j).sum()),
+                settled=int((settled & (res["family"] == j)).sum()),
+                pe=int((pe & (res["family"] == j)).sum()),
+            )
+            for j, f in enumerate(pj.INPUT_FAMILIES)
+            if j in s.families
+        },
+        overturned=rows,
+        checks=check_rows,
     )
 
 
@@ -106,17 +137,20 @@ def merge(paths) -> dict:
             raise SystemExit("the parts must be consecutive draws of one seed and settings")
     out = {k: first[k] for k in ("seed", "start", "settings", "tolerance", "band")}
     out |= {k: sum(p[k] for p in parts) for k in SUMMED}
-    out |= {k: sum(p[k] for p in parts) for k in ("float_exact_condition_overturned",
-                                                   "raw_gram_overturned", "check_mismatches")}
+    out |= {
+        k: sum(p[k] for p in parts)
+        for k in ("float_exact_condition_overturned", "raw_gram_overturned", "check_mismatches")
+    }
     out["exact_condition_mismatches"] = {
-        k: sum(p["exact_condition_mismatches"][k] for p in parts) for k in first["exact_condition_mismatches"]}
+        k: sum(p["exact_condition_mismatches"][k] for p in parts) for k in first["exact_condition_mismatches"]
+    }
     levels = [p["largest_event_level_not_pe"] for p in parts if p["largest_event_level_not_pe"] is not None]
     out["largest_event_level_not_pe"] = max(levels) if levels else None
-    levels = [p["smallest_event_level_settled_pe"] for p in parts
-              if p["smallest_event_level_settled_pe"] is not None]
+    levels = [p["smallest_event_level_settled_pe"] for p in parts if p["smallest_event_level_settled_pe"] is not None]
     out["smallest_event_level_settled_pe"] = min(levels) if levels else None
-    out["per_family"] = {f: {k: sum(p["per_family"][f][k] for p in parts) for k in v}
-                         for f, v in first["per_family"].items()}
+    out["per_family"] = {
+        f: {k: sum(p["per_family"][f][k] for p in parts) for k in v} for f, v in first["per_family"].items()
+    }
     out["parts"] = [str(p) for p in paths]
     out["overturned"] = [r for p in parts for r in p["overturned"]]
     out["checks"] = [r for p in parts for r in p["checks"]]
@@ -138,8 +172,7 @@ def main(argv=None):
     report = merge(args.merge) if args.merge else study(args)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(report, indent=1))
-    print(json.dumps({k: v for k, v in report.items()
-                      if k not in ("overturned", "checks", "settings", "per_family")}))
+    print(json.dumps({k: v for k, v in report.items() if k not in ("overturned", "checks", "settings", "per_family")}))
     print(args.out)
 
 

@@ -95,13 +95,18 @@ def residual_by_segment(val, models, ptp_full, seconds=2.0):
         e = np.asarray(f(val.u, 0.0)) - val.y
         classes = {"paused": [], "full_amplitude": [], "other": []}
         for k in range(0, val.n_samples - w + 1, w):
-            span = np.ptp(val.u[k:k + w])
-            c = ("paused" if span < 1e-3 * ptp_full
-                 else "full_amplitude" if span >= 0.9 * ptp_full else "other")
-            classes[c].append(float(np.mean(e[k:k + w])))
-        out[label] = {c: {"windows": len(v), "mean": float(np.mean(v)) if v else None,
-                          "min": min(v, default=None), "max": max(v, default=None)}
-                      for c, v in classes.items()}
+            span = np.ptp(val.u[k : k + w])
+            c = "paused" if span < 1e-3 * ptp_full else "full_amplitude" if span >= 0.9 * ptp_full else "other"
+            classes[c].append(float(np.mean(e[k : k + w])))
+        out[label] = {
+            c: {
+                "windows": len(v),
+                "mean": float(np.mean(v)) if v else None,
+                "min": min(v, default=None),
+                "max": max(v, default=None),
+            }
+            for c, v in classes.items()
+        }
     return out
 
 
@@ -121,8 +126,11 @@ def aye(quick):
         t0 = time.perf_counter()
         fits[n] = fit_pi(idr.u, idr.y, n, key=jax.random.key(n), **fopts)
         fitted[n] = summary(fits[n], val, time.perf_counter() - t0, fopts["max_threshold"])
-        print(f"aye fit n={n}: id {fitted[n]['identification_rmse']:.4f} "
-              f"val {fitted[n]['validation_rmse']:.4f} {fitted[n]['solver_result']}", flush=True)
+        print(
+            f"aye fit n={n}: id {fitted[n]['identification_rmse']:.4f} "
+            f"val {fitted[n]['validation_rmse']:.4f} {fitted[n]['solver_result']}",
+            flush=True,
+        )
     base = summary(plain, val)
 
     def fewest(key, against):
@@ -148,8 +156,15 @@ def aye(quick):
     vmask = np.ones(val.n_samples)
     vmask[:SETTLE] = 0.0
     n_cross = 6 if not quick else 4
-    cross = fit_pi(val.u, val.y, n_cross, initial_states=0.0, mask=vmask, key=jax.random.key(0),
-                   max_threshold=KAPPA * 0.5 * np.ptp(val.u))
+    cross = fit_pi(
+        val.u,
+        val.y,
+        n_cross,
+        initial_states=0.0,
+        mask=vmask,
+        key=jax.random.key(0),
+        max_threshold=KAPPA * 0.5 * np.ptp(val.u),
+    )
     e_cross = np.asarray(cross(idr.u, 0.0))[SETTLE:] - idr.y[SETTLE:]
     u_cross = uniform_pi(val.u, val.y, BASELINE_PLAYS, initial_states=0.0, mask=vmask)
     e_ucross = np.asarray(u_cross(idr.u, 0.0))[SETTLE:] - idr.y[SETTLE:]
@@ -157,11 +172,13 @@ def aye(quick):
     n_sens = 6 if not quick else 4
     sens = {"bounded_positive": fitted.get(n_sens)}
     for label, kw in (("unbounded_positive", {}), ("unbounded_signed", {"positive_weights": False})):
-        f = fit_pi(idr.u, idr.y, n_sens, key=jax.random.key(n_sens), max_steps=MAX_STEPS,
-                   **opts, **kw)
+        f = fit_pi(idr.u, idr.y, n_sens, key=jax.random.key(n_sens), max_steps=MAX_STEPS, **opts, **kw)
         sens[label] = summary(f, val)
-        print(f"aye {label} n={n_sens}: id {sens[label]['identification_rmse']:.4f} "
-              f"val {sens[label]['validation_rmse']:.4f}", flush=True)
+        print(
+            f"aye {label} n={n_sens}: id {sens[label]['identification_rmse']:.4f} "
+            f"val {sens[label]['validation_rmse']:.4f}",
+            flush=True,
+        )
     sens["uniform_20_settling_held_out"] = uniform.get(BASELINE_PLAYS)
     # The validation run's initial states are unknown: how much do other plausible choices move
     # its RMSE? Relaxed at 0 (the default), relaxed at the first input, after a 0-3.6 V cycle
@@ -171,13 +188,16 @@ def aye(quick):
         if f is None:
             continue
         r = np.asarray(f.thresholds)
-        states = {"zero": 0.0, "first_input": float(val.u[0]),
-                  "after_full_cycle": np.minimum(r, np.ptp(idr.u) - r),
-                  "identification_final": np.asarray(f.operator().final_states(idr.u))}
+        states = {
+            "zero": 0.0,
+            "first_input": float(val.u[0]),
+            "after_full_cycle": np.minimum(r, np.ptp(idr.u) - r),
+            "identification_final": np.asarray(f.operator().final_states(idr.u)),
+        }
         init[label] = {k: rmse(np.asarray(f(val.u, x0)), val.y) for k, x0 in states.items()}
     segments = residual_by_segment(
-        val, {"baseline_20": plain, **({f"fitted_{n_sens}": fits[n_sens]} if n_sens in fits else {})},
-        np.ptp(idr.u))
+        val, {"baseline_20": plain, **({f"fitted_{n_sens}": fits[n_sens]} if n_sens in fits else {})}, np.ptp(idr.u)
+    )
     best_n = min(fitted, key=lambda n: fitted[n]["validation_rmse"])
     verdict = {
         "baseline_validation_rmse": base["validation_rmse"],
@@ -187,11 +207,13 @@ def aye(quick):
         "selected_validation_rmse": fitted[n_sel]["validation_rmse"] if n_sel in fitted else None,
         "fitted_beats_baseline_raw": fitted[best_n]["validation_rmse"] < base["validation_rmse"],
         "fitted_beats_baseline_offset_removed": {
-            str(n): fitted[n]["validation_rmse_offset_removed"]
-            < base["validation_rmse_offset_removed"] for n in fitted_ns},
+            str(n): fitted[n]["validation_rmse_offset_removed"] < base["validation_rmse_offset_removed"]
+            for n in fitted_ns
+        },
         "validation_mean_residual_spread_over_sensitivity_fits": (
             max(v["validation_mean_residual"] for v in sens.values() if v)
-            - min(v["validation_mean_residual"] for v in sens.values() if v)),
+            - min(v["validation_mean_residual"] for v in sens.values() if v)
+        ),
     }
     res = {
         "verdict": verdict,
@@ -204,11 +226,19 @@ def aye(quick):
         # Against the plain baseline (no samples held out) and against the same 20-play grid
         # fitted with the settling samples held out like the gradient fits (like for like).
         "fewest_fitted_plays_beating": {
-            name: {k: fewest(k, against) for k in ("identification_rmse", "validation_rmse",
-                                                  "validation_rmse_after_settling",
-                                                  "validation_rmse_offset_removed")}
-            for name, against in (("baseline", base), ("uniform_20_settling_held_out",
-                                                       uniform.get(BASELINE_PLAYS, base)))
+            name: {
+                k: fewest(k, against)
+                for k in (
+                    "identification_rmse",
+                    "validation_rmse",
+                    "validation_rmse_after_settling",
+                    "validation_rmse_offset_removed",
+                )
+            }
+            for name, against in (
+                ("baseline", base),
+                ("uniform_20_settling_held_out", uniform.get(BASELINE_PLAYS, base)),
+            )
         },
         "selection": {
             "criterion": "holdout (last 30 % of the identification run)",
@@ -218,13 +248,18 @@ def aye(quick):
             "uniform_20_heldout_rmse": u_sel_score,
         },
         "run_to_run_offset": {
-            "fitted_on_validation": {"n_plays": n_cross, "validation_rmse": float(cross.rmse),
-                                     "identification_mean_residual": float(np.mean(e_cross)),
-                                     "identification_rmse": rmse(e_cross, 0.0)},
-            "uniform_on_validation": {"n_plays": BASELINE_PLAYS,
-                                      "validation_rmse": float(u_cross.rmse),
-                                      "identification_mean_residual": float(np.mean(e_ucross)),
-                                      "identification_rmse": rmse(e_ucross, 0.0)},
+            "fitted_on_validation": {
+                "n_plays": n_cross,
+                "validation_rmse": float(cross.rmse),
+                "identification_mean_residual": float(np.mean(e_cross)),
+                "identification_rmse": rmse(e_cross, 0.0),
+            },
+            "uniform_on_validation": {
+                "n_plays": BASELINE_PLAYS,
+                "validation_rmse": float(u_cross.rmse),
+                "identification_mean_residual": float(np.mean(e_ucross)),
+                "identification_rmse": rmse(e_ucross, 0.0),
+            },
         },
         "settling_samples_held_out": SETTLE,
         "max_threshold_fraction_of_half_range": KAPPA,
@@ -263,8 +298,7 @@ def chandra(quick):
             "seconds": time.perf_counter() - t0,
             "flagged": f.flagged,
         }
-        print(f"chandra n={n}: rmse {out[n]['rmse_excited']:.4f} (uniform "
-              f"{float(u_n.rmse):.4f})", flush=True)
+        print(f"chandra n={n}: rmse {out[n]['rmse_excited']:.4f} (uniform {float(u_n.rmse):.4f})", flush=True)
         if best is None or out[n]["rmse_excited"] < best[1]:
             best = (f, out[n]["rmse_excited"])
     figure_chandra(rec, best[0], excited)
@@ -291,21 +325,19 @@ def figure_aye(val, f, base, res):
     a.set(xlabel="time [s]", ylabel="sensor output", title="Aye validation run")
     a.legend(fontsize=8)
     a = axes[1]
-    a.plot(val.t, val.y - yb, "C0", lw=0.6,
-           label=f"uniform {base.n_plays} plays: {rmse(yb, val.y):.3f}")
-    a.plot(val.t, val.y - ym, "C1", lw=0.6,
-           label=f"fitted {f.n_plays} plays: {rmse(ym, val.y):.3f}")
+    a.plot(val.t, val.y - yb, "C0", lw=0.6, label=f"uniform {base.n_plays} plays: {rmse(yb, val.y):.3f}")
+    a.plot(val.t, val.y - ym, "C1", lw=0.6, label=f"fitted {f.n_plays} plays: {rmse(ym, val.y):.3f}")
     a.set(xlabel="time [s]", ylabel="measured - model", title="validation residual (RMSE)")
     a.legend(fontsize=8)
     a = axes[2]
     un = sorted(res["uniform"], key=int)
     fn = sorted(res["fitted"], key=int)
-    for key, style, what in [("validation_rmse", "-", "raw"),
-                             ("validation_rmse_offset_removed", "--", "offset removed")]:
-        a.plot(un, [res["uniform"][n][key] for n in un], "o" + style, color="C0",
-               label=f"uniform grid, {what}")
-        a.plot(fn, [res["fitted"][n][key] for n in fn], "s" + style, color="C1",
-               label=f"fitted thresholds, {what}")
+    for key, style, what in [
+        ("validation_rmse", "-", "raw"),
+        ("validation_rmse_offset_removed", "--", "offset removed"),
+    ]:
+        a.plot(un, [res["uniform"][n][key] for n in un], "o" + style, color="C0", label=f"uniform grid, {what}")
+        a.plot(fn, [res["fitted"][n][key] for n in fn], "s" + style, color="C1", label=f"fitted thresholds, {what}")
     a.set(xlabel="number of plays", ylabel="validation RMSE", title="model size")
     a.legend(fontsize=8)
     fig.tight_layout()
@@ -325,9 +357,11 @@ def figure_chandra(rec, f, excited):
     a1.set(xlabel="voltage [V]", ylabel="displacement [µm]", title="Chandra piezo, 1 Hz")
     a1.legend(fontsize=8)
     a2.plot(rec.t[excited], rec.y[excited] - y[excited], lw=0.5)
-    a2.set(xlabel="time [s]", ylabel="residual [µm]",
-           title=f"residual, RMSE {rmse(y[excited], rec.y[excited]):.3f} µm "
-                 f"(noise ≈ {CHANDRA_NOISE} µm)")
+    a2.set(
+        xlabel="time [s]",
+        ylabel="residual [µm]",
+        title=f"residual, RMSE {rmse(y[excited], rec.y[excited]):.3f} µm (noise ≈ {CHANDRA_NOISE} µm)",
+    )
     fig.tight_layout()
     pj.save_figure(fig, OUT / "fit_real_data_chandra.png", dpi=110)
 

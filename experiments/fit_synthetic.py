@@ -110,8 +110,7 @@ def figure(t, yd, uniform, fitted, comp):
     for a, name in zip(axes[1:], ["exact_class", "model_error"]):
         c = comp[name]["_c"]
         a.plot(t, np.asarray(c.y_linear) - yd, lw=0.7, label=f"linear: {float(c.rmse_linear):.3f}")
-        a.plot(t, np.asarray(c.y_compensated) - yd, lw=0.7,
-               label=f"inverse PI: {float(c.rmse_compensated):.3f}")
+        a.plot(t, np.asarray(c.y_compensated) - yd, lw=0.7, label=f"inverse PI: {float(c.rmse_compensated):.3f}")
         a.set(xlabel="time [s]", ylabel="tracking error", title=f"compensation, {name}")
         a.legend(fontsize=8)
     fig.tight_layout()

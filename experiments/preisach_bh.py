@@ -74,59 +74,70 @@ def main():
             t0 = time.perf_counter()
             pi = pj.uniform_pi(u, y, N_PLAYS, initial_states=0.0, mask=mask)
             t_pi = time.perf_counter() - t0
-            pi_pred = np.asarray(pi(v, initial_states=np.zeros(N_PLAYS)))[len(h):]
+            pi_pred = np.asarray(pi(v, initial_states=np.zeros(N_PLAYS)))[len(h) :]
 
             t0 = time.perf_counter()
             # The smoothness by the default held-out blocks (5 contiguous blocks of the training
             # record; blocks aligned with the loops, n_blocks=len(train), chose worse here: with
             # 2-3 training loops that scores mostly extrapolation to the largest loop).
-            pre = pj.fit_preisach(u, y, n_widths=GRID[0], n_centres=GRID[1], mask=mask,
-                                  initial_states=0.0)
+            pre = pj.fit_preisach(u, y, n_widths=GRID[0], n_centres=GRID[1], mask=mask, initial_states=0.0)
             t_pre = time.perf_counter() - t0
-            pre_pred = np.asarray(pre.model(v))[len(h):]
+            pre_pred = np.asarray(pre.model(v))[len(h) :]
 
             t0 = time.perf_counter()
-            mono = pj.fit_preisach(u, y, n_widths=GRID[0], n_centres=GRID[1], mask=mask,
-                                   initial_states=0.0, monotone=True)
+            mono = pj.fit_preisach(
+                u, y, n_widths=GRID[0], n_centres=GRID[1], mask=mask, initial_states=0.0, monotone=True
+            )
             t_mono = time.perf_counter() - t0
-            mono_pred = np.asarray(mono.model(v))[len(h):]
+            mono_pred = np.asarray(mono.model(v))[len(h) :]
 
             t0 = time.perf_counter()
-            gpi = pj.fit_gpi(u, y, N_PLAYS_FITTED, initial_states=0.0, mask=mask,
-                             key=jax.random.key(0))
+            gpi = pj.fit_gpi(u, y, N_PLAYS_FITTED, initial_states=0.0, mask=mask, key=jax.random.key(0))
             t_gpi = time.perf_counter() - t0
-            gpi_pred = np.asarray(gpi(v, np.zeros(N_PLAYS_FITTED)))[len(h):]
-            fpi = pj.fit_pi(u, y, N_PLAYS_FITTED, initial_states=0.0, mask=mask,
-                            key=jax.random.key(0), covariance=None)
-            fpi_pred = np.asarray(fpi(v, np.zeros(N_PLAYS_FITTED)))[len(h):]
+            gpi_pred = np.asarray(gpi(v, np.zeros(N_PLAYS_FITTED)))[len(h) :]
+            fpi = pj.fit_pi(u, y, N_PLAYS_FITTED, initial_states=0.0, mask=mask, key=jax.random.key(0), covariance=None)
+            fpi_pred = np.asarray(fpi(v, np.zeros(N_PLAYS_FITTED)))[len(h) :]
 
             e_pi, e_pre, e_mono = rmse(pi_pred, b), rmse(pre_pred, b), rmse(mono_pred, b)
             e_gpi, e_fpi = rmse(gpi_pred, b), rmse(fpi_pred, b)
             row = {
-                "dataset": name, "held_out_loop": held, "H_max": float(np.max(h)),
+                "dataset": name,
+                "held_out_loop": held,
+                "H_max": float(np.max(h)),
                 "B_range": float(np.ptp(b)),
-                "pi20_rmse_T": e_pi, "preisach_rmse_T": e_pre, "ratio_preisach_over_pi": e_pre / e_pi,
+                "pi20_rmse_T": e_pi,
+                "preisach_rmse_T": e_pre,
+                "ratio_preisach_over_pi": e_pre / e_pi,
                 "preisach_monotone_rmse_T": e_mono,
                 "ratio_preisach_monotone_over_pi": e_mono / e_pi,
-                "gpi_rmse_T": e_gpi, "ratio_gpi_over_pi": e_gpi / e_pi,
-                "pi_fitted_rmse_T": e_fpi, "ratio_pi_fitted_over_pi": e_fpi / e_pi,
-                "gpi_train_rmse_T": float(gpi.rmse), "gpi_result": gpi.result_name,
-                "pi_fitted_train_rmse_T": float(fpi.rmse), "fit_seconds_gpi": t_gpi,
-                "pi20_train_rmse_T": float(pi.rmse), "preisach_train_rmse_T": pre.rmse,
+                "gpi_rmse_T": e_gpi,
+                "ratio_gpi_over_pi": e_gpi / e_pi,
+                "pi_fitted_rmse_T": e_fpi,
+                "ratio_pi_fitted_over_pi": e_fpi / e_pi,
+                "gpi_train_rmse_T": float(gpi.rmse),
+                "gpi_result": gpi.result_name,
+                "pi_fitted_train_rmse_T": float(fpi.rmse),
+                "fit_seconds_gpi": t_gpi,
+                "pi20_train_rmse_T": float(pi.rmse),
+                "preisach_train_rmse_T": pre.rmse,
                 "preisach_monotone_train_rmse_T": mono.rmse,
-                "preisach_smoothness": pre.smoothness, "preisach_monotone_smoothness": mono.smoothness,
-                "fit_seconds_pi": t_pi, "fit_seconds_preisach": t_pre,
+                "preisach_smoothness": pre.smoothness,
+                "preisach_monotone_smoothness": mono.smoothness,
+                "fit_seconds_pi": t_pi,
+                "fit_seconds_preisach": t_pre,
                 "fit_seconds_preisach_monotone": t_mono,
             }
             results.append(row)
             curves.append((name, held, h, b, pi_pred, pre_pred, mono_pred, gpi_pred))
-            print(f"{name} loop {held} (H_max {row['H_max']:.4g}): PI20 {e_pi:.4g} T, "
-                  f"Preisach {e_pre:.4g} T (ratio {e_pre / e_pi:.3f}), monotone Preisach "
-                  f"{e_mono:.4g} T (ratio {e_mono / e_pi:.3f}), GPI {e_gpi:.4g} T (ratio "
-                  f"{e_gpi / e_pi:.3f}), PI{N_PLAYS_FITTED} fitted {e_fpi:.4g} T", flush=True)
+            print(
+                f"{name} loop {held} (H_max {row['H_max']:.4g}): PI20 {e_pi:.4g} T, "
+                f"Preisach {e_pre:.4g} T (ratio {e_pre / e_pi:.3f}), monotone Preisach "
+                f"{e_mono:.4g} T (ratio {e_mono / e_pi:.3f}), GPI {e_gpi:.4g} T (ratio "
+                f"{e_gpi / e_pi:.3f}), PI{N_PLAYS_FITTED} fitted {e_fpi:.4g} T",
+                flush=True,
+            )
 
-    summary = {"grid": list(GRID), "n_plays_pi": N_PLAYS, "n_plays_fitted": N_PLAYS_FITTED,
-               "cases": results}
+    summary = {"grid": list(GRID), "n_plays_pi": N_PLAYS, "n_plays_fitted": N_PLAYS_FITTED, "cases": results}
     for key in ("preisach", "preisach_monotone", "gpi", "pi_fitted"):
         ratios = np.array([r[f"ratio_{key}_over_pi"] for r in results])
         summary[key] = {

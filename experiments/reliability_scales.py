@@ -59,6 +59,7 @@ def run(precision: str) -> dict:
     }
     scales = {}
     for name, est in estimators.items():
+
         def last(H, y, est=est, rescale=False):
             return pj.estimate(est, H, y, rescale=rescale).weights[-1]
 
@@ -81,13 +82,17 @@ def run(precision: str) -> dict:
         f = fit_pi(su * uu, sy * yy, 3, n_starts=2, max_steps=80)
         th = np.asarray(f.thresholds, np.float64) / su
         w = np.asarray(f.weights, np.float64) * su / sy
-        fits.append({
-            "su": su, "sy": sy, "result": f.result_name,
-            "threshold_abs_error": float(np.max(np.abs(th - R))),
-            "weight_rel_error": float(np.max(np.abs(w - W) / np.array(W))),
-            "offset_error": abs(float(f.offset) / sy - 0.2),
-            "finite": bool(np.all(np.isfinite(th)) and np.all(np.isfinite(w))),
-        })
+        fits.append(
+            {
+                "su": su,
+                "sy": sy,
+                "result": f.result_name,
+                "threshold_abs_error": float(np.max(np.abs(th - R))),
+                "weight_rel_error": float(np.max(np.abs(w - W) / np.array(W))),
+                "offset_error": abs(float(f.offset) / sy - 0.2),
+                "finite": bool(np.all(np.isfinite(th)) and np.all(np.isfinite(w))),
+            }
+        )
 
     # The long record, written and read as CSV.
     n = 1_000_000
@@ -98,8 +103,7 @@ def run(precision: str) -> dict:
     long = {"n_samples": n}
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "long.csv"
-        np.savetxt(p, np.column_stack([kl * 1e-4, ul, yl]), delimiter=",", fmt="%.17g",
-                   header="t,u,y", comments="")
+        np.savetxt(p, np.column_stack([kl * 1e-4, ul, yl]), delimiter=",", fmt="%.17g", header="t,u,y", comments="")
         long["csv_mb"] = p.stat().st_size / 2**20
         t0 = time.perf_counter()
         rec = load_record(p)
@@ -111,9 +115,11 @@ def run(precision: str) -> dict:
     Hl.block_until_ready()
     long["regressor_s"] = time.perf_counter() - t0
     yl_d = jnp.asarray(rec.y, dtype)
-    for name, est, rescale in [("ForgettingRLS(P0=1e-4)", pj.ForgettingRLS(1e-4, 1.0), False),
-                               ("NormalisedGradient(1)", pj.NormalisedGradient(1.0), False),
-                               ("NormalisedGradient(1), rescale", pj.NormalisedGradient(1.0), True)]:
+    for name, est, rescale in [
+        ("ForgettingRLS(P0=1e-4)", pj.ForgettingRLS(1e-4, 1.0), False),
+        ("NormalisedGradient(1)", pj.NormalisedGradient(1.0), False),
+        ("NormalisedGradient(1), rescale", pj.NormalisedGradient(1.0), True),
+    ]:
         t0 = time.perf_counter()
         e = pj.estimate(est, Hl, yl_d, rescale=rescale)
         wl = np.asarray(e.weights[-1], np.float64)
@@ -123,8 +129,13 @@ def run(precision: str) -> dict:
             "rel_error": float(np.linalg.norm(wl - w10) / np.linalg.norm(w10)),
         }
     long["peak_mb"] = _peak_mb()
-    return {"precision": precision, "estimators_at_scales": scales, "fit_at_scales": fits,
-            "long_record": long, "devices": [str(d) for d in jax.devices()]}
+    return {
+        "precision": precision,
+        "estimators_at_scales": scales,
+        "fit_at_scales": fits,
+        "long_record": long,
+        "devices": [str(d) for d in jax.devices()],
+    }
 
 
 def main():

@@ -24,9 +24,7 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "paper"
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     choices = [*paper.FIGURES, "noise"]
     p.add_argument("what", nargs="*", help=f"any of {choices} (default: all)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder")

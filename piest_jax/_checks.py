@@ -51,8 +51,7 @@ def signal(u, name: str = "u") -> Array:
     u = as_float_array(u, name)
     if u.ndim != 1:
         raise ValueError(
-            f"`{name}` must be one signal of shape (T,), got shape {u.shape}; "
-            "batch several signals with jax.vmap"
+            f"`{name}` must be one signal of shape (T,), got shape {u.shape}; batch several signals with jax.vmap"
         )
     if u.shape[0] < 1:
         raise ValueError(f"`{name}` is empty: it needs at least one sample")
@@ -100,7 +99,5 @@ def per_play(x, n: int | None, name: str) -> Array:
         if n is None:
             raise ValueError(f"`{name}` is a vector {x.shape} but the threshold is a scalar")
         if x.shape[0] != n:
-            raise ValueError(
-                f"`{name}` has {x.shape[0]} entries but there are {n} thresholds"
-            )
+            raise ValueError(f"`{name}` has {x.shape[0]} entries but there are {n} thresholds")
     return x

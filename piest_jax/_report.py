@@ -57,9 +57,7 @@ def check_finite(name: str, bad, allowed) -> None:
     if refused:
         keys, v = refused[0]
         more = f" (and {len(refused) - 1} more values)" if len(refused) > 1 else ""
-        raise NonFiniteError(
-            f"the result is not finite: {_where(keys)} = {v} in {name}{more}; nothing was written"
-        )
+        raise NonFiniteError(f"the result is not finite: {_where(keys)} = {v} in {name}{more}; nothing was written")
 
 
 def json_text(obj, *, name: str = "the report", allowed=None) -> str:

@@ -19,6 +19,17 @@ from ._estimation.reproduce import reproduce as reproduce
 from ._estimation.reproduce import time_to_tolerance as time_to_tolerance
 
 __all__ = [
-    "CASES", "DEFAULT_P0", "DT", "DURATION", "FIGURES", "THRESHOLDS", "PaperCase",
-    "figure", "noise_figure", "noise_study", "public_report", "reproduce", "time_to_tolerance",
+    "CASES",
+    "DEFAULT_P0",
+    "DT",
+    "DURATION",
+    "FIGURES",
+    "THRESHOLDS",
+    "PaperCase",
+    "figure",
+    "noise_figure",
+    "noise_study",
+    "public_report",
+    "reproduce",
+    "time_to_tolerance",
 ]

@@ -160,6 +160,4 @@ def exact_window_pe(u, r, x0, window, stride):
     """Per window: do the exact play outputs of the window have full column rank?"""
     H = exact_play(u, r, x0)
     n = len(H[0])
-    return np.array(
-        [exact_rank(H[a : a + window]) == n for a in range(0, len(H) - window + 1, stride)]
-    )
+    return np.array([exact_rank(H[a : a + window]) == n for a in range(0, len(H) - window + 1, stride)])

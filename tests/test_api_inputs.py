@@ -49,8 +49,10 @@ def test_pe_map_takes_legacy_and_new_style_keys_alike():
     for k in new:
         if k != "seconds":
             np.testing.assert_array_equal(new[k], legacy[k], err_msg=k)
-    np.testing.assert_array_equal(jax.random.key_data(pj.draw_keys(jax.random.PRNGKey(1), 0, 4)),
-                                  jax.random.key_data(pj.draw_keys(jax.random.key(1), 0, 4)))
+    np.testing.assert_array_equal(
+        jax.random.key_data(pj.draw_keys(jax.random.PRNGKey(1), 0, 4)),
+        jax.random.key_data(pj.draw_keys(jax.random.key(1), 0, 4)),
+    )
     with pytest.raises(ValueError, match=r"`key` must be a PRNG key such as jax.random.key\(0\)"):
         pj.pe_map(np.zeros(3), 7, settings)
     with pytest.raises(ValueError, match="one PRNG key"):
@@ -92,10 +94,12 @@ def test_fit_pi_takes_numpy_integers_for_its_counts():
 # Every public function taking a key, called with (new-style, legacy) keys of the same seed.
 KEYED = {
     "draw_case": lambda k: pj.draw_case(k, "sine", jnp.asarray(T_GRID[:200]), 3),
-    "run_batch": lambda k: pj.run_batch(jnp.stack([U[:200], U[:200]]), jnp.ones((2, 3)), R, key=k,
-                                        noise_std=0.1).final_weights,
-    "fit_pi": lambda k: pj.fit_pi(np.asarray(U[:400]), np.asarray(H[:400].sum(axis=1)), 2, n_starts=3,
-                                  max_steps=3, key=k).thresholds,
+    "run_batch": lambda k: (
+        pj.run_batch(jnp.stack([U[:200], U[:200]]), jnp.ones((2, 3)), R, key=k, noise_std=0.1).final_weights
+    ),
+    "fit_pi": lambda k: (
+        pj.fit_pi(np.asarray(U[:400]), np.asarray(H[:400].sum(axis=1)), 2, n_starts=3, max_steps=3, key=k).thresholds
+    ),
     "hidden_effect_record": lambda k: pj.hidden_effect_record((), key=k, n_samples=300)[0].y,
 }
 

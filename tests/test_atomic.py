@@ -265,7 +265,9 @@ def test_inside_a_transaction_non_finite_results_are_refused(tmp_path):
         _io.write_json(tmp_path / "r.json", {"w": [1.0], "sweep": {"t_hit": [0.5, np.inf]}})
         _io.write_csv(tmp_path / "c.csv", {"t": [0.0, 1.0], "v": [np.nan, 1.0]})
     assert json.loads((tmp_path / "r.json").read_text()) == {
-        "w": [1.0], "sweep": {"t_hit": [0.5, None]}, "non_finite": {"sweep.t_hit[1]": "inf"}
+        "w": [1.0],
+        "sweep": {"t_hit": [0.5, None]},
+        "non_finite": {"sweep.t_hit[1]": "inf"},
     }
     assert (tmp_path / "c.csv").read_text() == "t,v\n0,nan\n1,1\n"
 
@@ -289,8 +291,7 @@ def test_a_command_with_a_non_finite_result_fails_and_writes_nothing(tmp_path, c
     cap = capsys.readouterr()
     assert code == 2 and cap.out == ""  # no path is printed for a file that was not written
     assert cap.err == (
-        "piest reproduce: error: the result is not finite: final_abs_error[1] = nan in fig5.json; "
-        "nothing was written\n"
+        "piest reproduce: error: the result is not finite: final_abs_error[1] = nan in fig5.json; nothing was written\n"
     )
     assert _tree(out) == before  # fig5.png, computed before the failure, did not replace the old one
 
@@ -344,7 +345,9 @@ def test_killed_processes_never_leave_a_truncated_result(tmp_path):
     d2.mkdir()
     proc = subprocess.run(
         [sys.executable, str(script), str(d2 / "simulate.json"), "signals"],
-        capture_output=True, text=True, timeout=300,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip().splitlines()[-1] == f"[{128 + signal.SIGTERM}, 130]"

@@ -18,23 +18,26 @@ def spd(p, seed):
     return a @ a.T / p + 0.1 * np.eye(p)
 
 
-@pytest.mark.parametrize("fit_states, lags, given", [(False, 0, False), (True, 0, False), (True, 2, False),
-                                                     (True, 2, True)])
+@pytest.mark.parametrize(
+    "fit_states, lags, given", [(False, 0, False), (True, 0, False), (True, 2, False), (True, 2, True)]
+)
 def test_band_matches_finite_difference_jacobians(fit_states, lags, given):
     # A fitted model with a made-up covariance Σ, on a new input: sqrt(diag(J Σ Jᵀ)) with J by
     # central differences of the NumPy reference model over the named parameters.
     T, dt = 240, 0.01
     u = signal(T)
     y = ref.play(u, R, u[0]) @ W + C + 0.02 * np.random.default_rng(3).standard_normal(T)
-    f = pj.fit_pi(u, y, 3, thresholds0=R, n_starts=1, n_lags=lags, dt=dt,
-                  fit_initial_states=fit_states, max_steps=20)
+    f = pj.fit_pi(u, y, 3, thresholds0=R, n_starts=1, n_lags=lags, dt=dt, fit_initial_states=fit_states, max_steps=20)
     names, theta = f.parameter_names, np.asarray(f.parameter_values)
     S = spd(len(names), 4)
     f = eqx.tree_at(lambda g: g.covariance, f, S)
     u2 = 0.8 * signal(150)[::-1] + 0.2
     x0 = np.asarray(f.initial_states)
-    z0 = np.full(lags, u2[0]) if f.creep is None or f.creep.initial_states is None else np.asarray(
-        f.creep.initial_states)
+    z0 = (
+        np.full(lags, u2[0])
+        if f.creep is None or f.creep.initial_states is None
+        else np.asarray(f.creep.initial_states)
+    )
     kwargs = {}
     if given:
         x0, z0 = np.array([u2[0], u2[0] + 0.1, u2[0] - 0.2]), np.array([0.1, -0.1])
@@ -48,13 +51,13 @@ def test_band_matches_finite_difference_jacobians(fit_states, lags, given):
         return reference_model(u2, v, names_used, dt, x0, z0)
 
     np.testing.assert_allclose(band.prediction, model(th), atol=1e-10)
-    np.testing.assert_allclose(band.prediction, f.model().with_initial_states(x0, z0 if lags else None)(u2),
-                               atol=1e-10)
+    np.testing.assert_allclose(band.prediction, f.model().with_initial_states(x0, z0 if lags else None)(u2), atol=1e-10)
     eps = 1e-6
     J = np.column_stack([(model(th + eps * e) - model(th - eps * e)) / (2 * eps) for e in np.eye(th.size)])
     np.testing.assert_allclose(band.std_error, np.sqrt(np.einsum("ti,ij,tj->t", J, S, J)), rtol=1e-5, atol=1e-8)
-    np.testing.assert_allclose(band.measurement_std_error,
-                               np.sqrt(band.std_error**2 + float(f.residual_std) ** 2), rtol=1e-12)
+    np.testing.assert_allclose(
+        band.measurement_std_error, np.sqrt(band.std_error**2 + float(f.residual_std) ** 2), rtol=1e-12
+    )
 
 
 def test_band_of_a_model_linear_in_its_parameters_is_the_regression_band():

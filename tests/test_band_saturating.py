@@ -52,8 +52,9 @@ def test_preisach_std_error_equals_the_dense_computation():
     v = signal(333, seed=5)
     band = pj.prediction_band(f, v, chunk=50)
     m = f.model
-    B = dense_relays(v, np.asarray(m.half_widths), np.asarray(m.centres), np.asarray(m.blur),
-                     np.full(K, v[0]))[:, triangle(K, M).ravel()]
+    B = dense_relays(v, np.asarray(m.half_widths), np.asarray(m.centres), np.asarray(m.blur), np.full(K, v[0]))[
+        :, triangle(K, M).ravel()
+    ]
     J = np.concatenate([B, np.ones((v.size, 1))], axis=1)
     want = np.sqrt(np.einsum("tp,pq,tq->t", J, np.asarray(f.covariance), J))
     np.testing.assert_allclose(band.std_error, want, rtol=1e-8, atol=1e-12)
@@ -69,8 +70,9 @@ def test_saturating_bands_refuse_creep_states_and_a_missing_covariance(gpi_fit):
         pj.prediction_band(g, u)
 
 
-@pytest.mark.parametrize("model", [["--model", "gpi", "--plays", "3"],
-                                   ["--model", "preisach", "--grid", "6,6"]], ids=["gpi", "preisach"])
+@pytest.mark.parametrize(
+    "model", [["--model", "gpi", "--plays", "3"], ["--model", "preisach", "--grid", "6,6"]], ids=["gpi", "preisach"]
+)
 def test_cli_reports_the_validation_band_coverage(tmp_path, model):
     import json
 
@@ -79,11 +81,25 @@ def test_cli_reports_the_validation_band_coverage(tmp_path, model):
     rng = np.random.default_rng(2)
     for name, x in (("a.csv", u), ("b.csv", v)):
         y = np.asarray(g.with_initial_states(x[0])(x)) + 0.01 * rng.standard_normal(x.size)
-        (tmp_path / name).write_text("t,u,y\n" + "\n".join(
-            f"{i * 1e-3:.6f},{a:.17g},{b:.17g}" for i, (a, b) in enumerate(zip(x, y))))
+        (tmp_path / name).write_text(
+            "t,u,y\n" + "\n".join(f"{i * 1e-3:.6f},{a:.17g},{b:.17g}" for i, (a, b) in enumerate(zip(x, y)))
+        )
     out = tmp_path / "o"
-    assert pj.run_cli(["fit", str(tmp_path / "a.csv"), "--validate", str(tmp_path / "b.csv"), *model,
-                       "--out", str(out), "--quiet"]) == 0
+    assert (
+        pj.run_cli(
+            [
+                "fit",
+                str(tmp_path / "a.csv"),
+                "--validate",
+                str(tmp_path / "b.csv"),
+                *model,
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     rep = json.loads((out / "fit.json").read_text())
     # The generating model is in both fits' class (the Preisach grid's nearly): the band covers
     # the validation record's fresh noise about as often as it says.

@@ -11,12 +11,14 @@ R = (0.0, 10 / 3, 20 / 3)
 DT = 1e-3
 T = 1001  # the shape of the other estimator tests, so their compiled scans are reused
 t = np.arange(T) * DT
-INPUTS = np.stack([
-    10 * np.sin(2 * np.pi * 5 * t),
-    10 * np.sin(10 * np.pi * t) + 5 * np.sin(2 * np.pi * t),
-    8 * np.sin(2 * np.pi * 7 * t),
-    10 * np.sin(2 * np.pi * 5 * t),
-])
+INPUTS = np.stack(
+    [
+        10 * np.sin(2 * np.pi * 5 * t),
+        10 * np.sin(10 * np.pi * t) + 5 * np.sin(2 * np.pi * t),
+        8 * np.sin(2 * np.pi * 7 * t),
+        10 * np.sin(2 * np.pi * 5 * t),
+    ]
+)
 JUMP = np.where((np.arange(T) < 500)[:, None], [2.0, 6.0, 8.0], [2.5, 5.0, 8.5])
 WEIGHTS = np.stack([np.tile(w, (T, 1)) for w in ([1, 3, 5], [0, 0, 0], [1, 1, 1], [0.5, 2, 3])])
 WEIGHTS[1] = JUMP
@@ -163,15 +165,24 @@ def _assert_same_stats(a, b):
 def test_estimator_objects_give_the_named_results():
     key = jax.random.PRNGKey(3)
     sigma = [0.0, 0.05, 0.02, 0.1]
-    named = run_batch(INPUTS, WEIGHTS, R, key=key, estimator="forgetting", P0=1e3,
-                      forgetting=[1.0, 0.98, 0.99, 0.995], noise_std=sigma)
+    named = run_batch(
+        INPUTS,
+        WEIGHTS,
+        R,
+        key=key,
+        estimator="forgetting",
+        P0=1e3,
+        forgetting=[1.0, 0.98, 0.99, 0.995],
+        noise_std=sigma,
+    )
     # One object per member: the array settings are stacked and batched.
     objects = [pj.ForgettingRLS(1e3, lam) for lam in (1.0, 0.98, 0.99, 0.995)]
     _assert_same_stats(run_batch(INPUTS, WEIGHTS, R, key=key, estimator=objects, noise_std=sigma), named)
     # One object shared by every member.
     shared = run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS(1e8, DT), noise_std=sigma)
-    _assert_same_stats(shared, run_batch(INPUTS, WEIGHTS, R, key=key, estimator="continuous", P0=1e8,
-                                         dt=DT, noise_std=sigma))
+    _assert_same_stats(
+        shared, run_batch(INPUTS, WEIGHTS, R, key=key, estimator="continuous", P0=1e8, dt=DT, noise_std=sigma)
+    )
 
 
 def test_estimator_objects_are_checked():
@@ -179,12 +190,18 @@ def test_estimator_objects_are_checked():
     with pytest.raises(ValueError, match="the class ContinuousRLS, not an estimator"):
         run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS)
     with pytest.raises(ValueError, match="one batch runs one estimator class"):
-        run_batch(INPUTS, WEIGHTS, R, key=key,
-                  estimator=[pj.ContinuousRLS(1.0, DT)] * 2 + [pj.NormalisedGradient(1.0)] * 2)
+        run_batch(
+            INPUTS, WEIGHTS, R, key=key, estimator=[pj.ContinuousRLS(1.0, DT)] * 2 + [pj.NormalisedGradient(1.0)] * 2
+        )
     with pytest.raises(ValueError, match="`P0` is a setting of the estimator object"):
         run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS(1.0, DT), P0=5.0)
     with pytest.raises(ValueError, match="static settings"):
-        run_batch(INPUTS, WEIGHTS, R, key=key, estimator=[pj.ContinuousRLS(1.0, DT)] * 3
-                  + [pj.ContinuousRLS(1.0, DT, normalisation="standard")])
+        run_batch(
+            INPUTS,
+            WEIGHTS,
+            R,
+            key=key,
+            estimator=[pj.ContinuousRLS(1.0, DT)] * 3 + [pj.ContinuousRLS(1.0, DT, normalisation="standard")],
+        )
     with pytest.raises(ValueError, match="set up for 2 plays but there are 3 thresholds"):
         run_batch(INPUTS, WEIGHTS, R, key=key, estimator=pj.ContinuousRLS(np.eye(2), DT))

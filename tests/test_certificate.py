@@ -54,8 +54,7 @@ def test_noise_free_error_equals_closed_form(P0, normalisation):
 
 @pytest.mark.parametrize(
     "P0,normalisation,case",
-    [(1e5, "paper", "fig5"), (1e8, "paper", "fig5"), (1e4, "standard", "fig5"),
-     ("matrix", "paper", "fig6")],
+    [(1e5, "paper", "fig5"), (1e8, "paper", "fig5"), (1e4, "standard", "fig5"), ("matrix", "paper", "fig6")],
 )
 def test_error_stays_inside_the_certificate(P0, normalisation, case):
     H, y, w_true = FIG5 if case == "fig5" else FIG6

@@ -43,16 +43,31 @@ def test_cli_fit_and_compensate_gpi(tmp_path, capsys):
     write(tmp_path / "d.csv", u, plant(u) + noise)
     write(tmp_path / "v.csv", uv, plant(uv))
     out = tmp_path / "out"
-    assert main(["fit", str(tmp_path / "d.csv"), "--model", "gpi", "--plays", "3", "--validate",
-                 str(tmp_path / "v.csv"), "--out", str(out), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                str(tmp_path / "d.csv"),
+                "--model",
+                "gpi",
+                "--plays",
+                "3",
+                "--validate",
+                str(tmp_path / "v.csv"),
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     rep = json.loads((out / "fit.json").read_text())
     assert rep["structure"] == "gpi"
     assert rep["model"] == {"structure": "gpi", "n_plays": 3, "n_terms": 2}
     g = rep["output_function"]
     assert g["form"] == "tanh" and len(g["amplitudes"]) == len(g["centres"]) == len(g["scales"]) == 2
-    for key in ("thresholds", "weights", "offset", "initial_states", "rmse", "solver",
-                "input_range"):
+    for key in ("thresholds", "weights", "offset", "initial_states", "rmse", "solver", "input_range"):
         assert key in rep
     assert rep["solver"]["result"] == "successful"
     assert {p.name for p in out.iterdir()} == {"fit.json", "fit.md", "fit.png", "validation.png"}
@@ -65,8 +80,10 @@ def test_cli_fit_and_compensate_gpi(tmp_path, capsys):
     # piest compensate inverts it: the model driven by u follows the desired output.
     yd = OFFSET + 1.0 * np.sin(np.linspace(0, 4 * np.pi, 150))
     desired(tmp_path / "yd.csv", yd)
-    assert main(["compensate", str(out / "fit.json"), str(tmp_path / "yd.csv"), "--out",
-                 str(tmp_path / "ff"), "--quiet"]) == 0
+    assert (
+        main(["compensate", str(out / "fit.json"), str(tmp_path / "yd.csv"), "--out", str(tmp_path / "ff"), "--quiet"])
+        == 0
+    )
     cols = np.loadtxt(tmp_path / "ff" / "compensate.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(cols[:, 3], yd, atol=1e-9)
     np.testing.assert_allclose(np.asarray(model(cols[:, 2])), yd, atol=1e-9)
@@ -79,8 +96,10 @@ def test_cli_fit_and_compensate_preisach(tmp_path, capsys):
     u = signal(400)
     write(tmp_path / "d.csv", u, plant(u))
     out = tmp_path / "out"
-    assert main(["fit", str(tmp_path / "d.csv"), "--model", "preisach", "--grid", "6,8", "--out",
-                 str(out), "--quiet"]) == 0
+    assert (
+        main(["fit", str(tmp_path / "d.csv"), "--model", "preisach", "--grid", "6,8", "--out", str(out), "--quiet"])
+        == 0
+    )
     capsys.readouterr()
     rep = json.loads((out / "fit.json").read_text())
     assert rep["structure"] == "preisach"
@@ -95,8 +114,10 @@ def test_cli_fit_and_compensate_preisach(tmp_path, capsys):
     assert rmse(model(u), plant(u)) == pytest.approx(rep["rmse"], rel=1e-7)
     yd = plant(u)[:150] * 0.8
     desired(tmp_path / "yd.csv", yd)
-    assert main(["compensate", str(out / "fit.json"), str(tmp_path / "yd.csv"), "--out",
-                 str(tmp_path / "ff"), "--quiet"]) == 0
+    assert (
+        main(["compensate", str(out / "fit.json"), str(tmp_path / "yd.csv"), "--out", str(tmp_path / "ff"), "--quiet"])
+        == 0
+    )
     cols = np.loadtxt(tmp_path / "ff" / "compensate.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(np.asarray(model(cols[:, 2])), yd, atol=1e-9)
     np.testing.assert_allclose(cols[:, 3], yd, atol=1e-9)
@@ -107,8 +128,7 @@ def test_cli_fit_and_compensate_preisach(tmp_path, capsys):
     [
         (["--model", "gpi"], "--model gpi needs --plays N"),
         (["--model", "gpi", "--plays", "2", "--lags", "1"], "--lags does not apply to --model gpi"),
-        (["--model", "gpi", "--plays", "2", "--signed-weights"],
-         "--signed-weights does not apply to --model gpi"),
+        (["--model", "gpi", "--plays", "2", "--signed-weights"], "--signed-weights does not apply to --model gpi"),
         (["--model", "gpi", "--plays", "2", "--grid", "4,4"], "--grid does not apply to --model gpi"),
         (["--model", "preisach", "--plays", "3"], "--plays does not apply to --model preisach"),
         (["--model", "preisach", "--solver", "gn"], "--solver does not apply to --model preisach"),
@@ -133,14 +153,12 @@ def test_cli_compensate_refuses_unreachable_and_non_invertible(tmp_path, capsys)
     g = pj.GeneralizedPI(pj.PIOperator(R, W), A, C, S, OFFSET)
     pj.save_model(tmp_path / "g.json", g)
     desired(tmp_path / "yd.csv", np.array([0.0, 1.0, 2.0]))  # the range is (-1.3, 1.9)
-    assert main(["compensate", str(tmp_path / "g.json"), str(tmp_path / "yd.csv"), "--out",
-                 str(tmp_path / "a")]) == 2
+    assert main(["compensate", str(tmp_path / "g.json"), str(tmp_path / "yd.csv"), "--out", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err
     assert "outside the range the model saturates at" in err and len(err.strip().splitlines()) == 1
     p = pj.Preisach([0.0, 0.5], [-0.5, 0.5], [[1.0, -0.2], [0.3, 0.1]])
     pj.save_model(tmp_path / "p.json", p)
-    assert main(["compensate", str(tmp_path / "p.json"), str(tmp_path / "yd.csv"), "--out",
-                 str(tmp_path / "b")]) == 2
+    assert main(["compensate", str(tmp_path / "p.json"), str(tmp_path / "yd.csv"), "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
     assert "cannot be inverted" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
@@ -166,17 +184,20 @@ def test_identify_fits_them_as_the_command_does(tmp_path, capsys):
     u, uv = signal(), signal(200, 0.3, 3)
     rec = pj.load_record(write(tmp_path / "d.csv", u, plant(u)))
     val = pj.load_record(write(tmp_path / "v.csv", uv, plant(uv)))
-    for model, extra, options in (("gpi", ["--plays", "3", "--starts", "2"], dict(plays=3, starts=2)),
-                                  ("preisach", ["--grid", "6,6"], dict(grid=(6, 6)))):
+    for model, extra, options in (
+        ("gpi", ["--plays", "3", "--starts", "2"], dict(plays=3, starts=2)),
+        ("preisach", ["--grid", "6,6"], dict(grid=(6, 6))),
+    ):
         out = tmp_path / model
-        assert main(["fit", rec.source, "--model", model, *extra, "--validate", val.source,
-                     "--out", str(out), "--quiet"]) == 0
+        assert (
+            main(["fit", rec.source, "--model", model, *extra, "--validate", val.source, "--out", str(out), "--quiet"])
+            == 0
+        )
         capsys.readouterr()
         got = pj.identify(rec, val, model=model, key=jax.random.key(0), **options)
         assert isinstance(got.fit, pj.GPIFit if model == "gpi" else pj.PreisachFit)
         assert got.validation.ic is None
-        np.testing.assert_allclose(got.validation.raw.rmse,
-                                   rmse(got.validation.raw.prediction, val.y))
+        np.testing.assert_allclose(got.validation.raw.rmse, rmse(got.validation.raw.prediction, val.y))
         want = json.loads((out / "fit.json").read_text())
         assert json.loads(pj.write_json(tmp_path / f"{model}.json", got.to_json()).read_text()) == want
         assert want["validation_rmse"] == pytest.approx(float(got.validation.raw.rmse))
@@ -192,19 +213,24 @@ def test_defaults_given_explicitly_are_not_refused():
     check_options(model="preisach", starts=np.int64(4), max_steps=100.0, fit_initial_states=np.False_)
 
 
-@pytest.mark.parametrize("options, message", [
-    (dict(model="gpi"), "`model` gpi needs `plays` N"),
-    (dict(model="gpi", plays=2, lags=[1]), "`lags` does not apply to `model` gpi"),
-    (dict(model="gpi", plays=2, positive_weights=False),
-     r"signed weights \(`positive_weights` False\) does not apply to `model` gpi"),
-    (dict(model="gpi", plays=2, terms=0), "`terms` must be a positive whole number, got 0"),
-    (dict(model="preisach", starts=2), "`starts` does not apply to `model` preisach"),
-    (dict(model="preisach", plays=3), "`plays` does not apply to `model` preisach"),
-    (dict(model="preisach", grid=(4,)), r"`grid` must be two positive whole numbers"),
-    (dict(model="preisach", smoothness=-1.0), "`smoothness` must be finite and >= 0, got -1"),
-    (dict(model="pi", terms=2), "`terms` is used only by `model` gpi, not `model` pi"),
-    (dict(grid=(4, 4)), "`grid` is used only by `model` preisach, not `model` auto"),
-])
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (dict(model="gpi"), "`model` gpi needs `plays` N"),
+        (dict(model="gpi", plays=2, lags=[1]), "`lags` does not apply to `model` gpi"),
+        (
+            dict(model="gpi", plays=2, positive_weights=False),
+            r"signed weights \(`positive_weights` False\) does not apply to `model` gpi",
+        ),
+        (dict(model="gpi", plays=2, terms=0), "`terms` must be a positive whole number, got 0"),
+        (dict(model="preisach", starts=2), "`starts` does not apply to `model` preisach"),
+        (dict(model="preisach", plays=3), "`plays` does not apply to `model` preisach"),
+        (dict(model="preisach", grid=(4,)), r"`grid` must be two positive whole numbers"),
+        (dict(model="preisach", smoothness=-1.0), "`smoothness` must be finite and >= 0, got -1"),
+        (dict(model="pi", terms=2), "`terms` is used only by `model` gpi, not `model` pi"),
+        (dict(grid=(4, 4)), "`grid` is used only by `model` preisach, not `model` auto"),
+    ],
+)
 def test_identify_refuses_what_a_model_ignores(tmp_path, options, message):
     u = signal()
     rec = pj.load_record(write(tmp_path / "d.csv", u, plant(u)))

@@ -68,8 +68,18 @@ def test_csv_input(tmp_path, capsys):
     src.write_text("t,u,y\n" + "".join(f"{a:.17g},{b:.17g},0\n" for a, b in zip(t, u)))
     out_dir = tmp_path / "csv"
     code, _, err = _run(
-        capsys, "--input", "csv", "--csv", str(src), "--plays", "4", "--r-max", "2",
-        "--out", str(out_dir), "--quiet",
+        capsys,
+        "--input",
+        "csv",
+        "--csv",
+        str(src),
+        "--plays",
+        "4",
+        "--r-max",
+        "2",
+        "--out",
+        str(out_dir),
+        "--quiet",
     )
     assert code == 0, err
     rec = load_record(out_dir / "simulate.csv")

@@ -83,14 +83,33 @@ def test_piest_fit_with_columns_fits_the_record(tmp_path, capsys):
     reports = []
     for argv in ([str(named), "--columns", "time_s,voltage_V,displacement_um"], [str(units)], [str(plain)]):
         out = tmp_path / f"o{len(reports)}"
-        code, _, err = _run(capsys, ["fit", *argv, "--model", "pi", "--plays", "2", "--starts", "2",
-                                     "--max-steps", "40", "--quiet", "--out", str(out)])
+        code, _, err = _run(
+            capsys,
+            [
+                "fit",
+                *argv,
+                "--model",
+                "pi",
+                "--plays",
+                "2",
+                "--starts",
+                "2",
+                "--max-steps",
+                "40",
+                "--quiet",
+                "--out",
+                str(out),
+            ],
+        )
         assert code == 0, err
         reports.append(json.loads((out / "fit.json").read_text()))
     # The same fit as of the file with the usual names.
     for rep in reports[:2]:
         assert (rep["thresholds"], rep["weights"], rep["rmse"]) == (
-            reports[2]["thresholds"], reports[2]["weights"], reports[2]["rmse"])
+            reports[2]["thresholds"],
+            reports[2]["weights"],
+            reports[2]["rmse"],
+        )
 
 
 @pytest.mark.parametrize(
@@ -115,8 +134,9 @@ def test_compensate_with_columns(tmp_path, capsys):
     model.write_text(json.dumps({"thresholds": [0, 0.5], "weights": [1, 0.5], "offset": 0.0}))
     desired = _write(tmp_path / "d.csv", "time [s],input,target [um]")
     out = tmp_path / "o"
-    code, _, err = _run(capsys, ["compensate", str(model), str(desired), "--columns", "time,target",
-                                 "--quiet", "--out", str(out)])
+    code, _, err = _run(
+        capsys, ["compensate", str(model), str(desired), "--columns", "time,target", "--quiet", "--out", str(out)]
+    )
     assert code == 0, err
     res = np.loadtxt(out / "compensate.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(res[:, 1], Y)
@@ -130,8 +150,10 @@ def test_one_segment_of_a_record_without_time(tmp_path, capsys):
     h = np.repeat([1.0, 2.0, 3.0], 40) * np.cos(2 * np.pi * k / 40)
     b = np.asarray(pj.PIOperator([0.0, 0.4], [1.0, 0.5])(h))
     loops = tmp_path / "loops.csv"
-    loops.write_text("segment,H [A/m],B [T]\n" + "".join(f"{k // 40},{a!r},{c!r}\n" for k, (a, c) in
-                                                       enumerate(zip(h.tolist(), b.tolist()))))
+    loops.write_text(
+        "segment,H [A/m],B [T]\n"
+        + "".join(f"{k // 40},{a!r},{c!r}\n" for k, (a, c) in enumerate(zip(h.tolist(), b.tolist())))
+    )
     alone = tmp_path / "alone.csv"
     alone.write_text("u,y\n" + "".join(f"{a!r},{c!r}\n" for a, c in zip(h[40:80].tolist(), b[40:80].tolist())))
     reps, errs = [], []
@@ -140,8 +162,24 @@ def test_one_segment_of_a_record_without_time(tmp_path, capsys):
     val.write_text("H,B\n" + alone.read_text().split("\n", 1)[1])
     first = [str(loops), "--columns", "H,B", "--segment", "1", "--validate", str(val)]
     for name, argv in (("a", first), ("b", [str(alone)])):
-        code, _, err = _run(capsys, ["fit", *argv, "--model", "pi", "--plays", "2", "--starts", "2",
-                                     "--max-steps", "30", "--quiet", "--out", str(tmp_path / name)])
+        code, _, err = _run(
+            capsys,
+            [
+                "fit",
+                *argv,
+                "--model",
+                "pi",
+                "--plays",
+                "2",
+                "--starts",
+                "2",
+                "--max-steps",
+                "30",
+                "--quiet",
+                "--out",
+                str(tmp_path / name),
+            ],
+        )
         assert code == 0, err
         reps.append(json.loads((tmp_path / name / "fit.json").read_text()))
         errs.append(err)
@@ -150,8 +188,10 @@ def test_one_segment_of_a_record_without_time(tmp_path, capsys):
     assert a["n_samples"] == 40 and a["dt"] == 1.0 and a["validation_rmse"] == pytest.approx(a["rmse"], rel=1e-6)
     assert (a["time_unit"], a["segment"]) == ("sample", 1.0) and b_["time_unit"] == "sample" and "segment" not in b_
     for path in (loops, val):
-        assert (f"piest fit: note: {path} has no time in seconds: t counts samples (step 1), so the times, time "
-                "constants and rates in the results are in samples\n") in errs[0]
+        assert (
+            f"piest fit: note: {path} has no time in seconds: t counts samples (step 1), so the times, time "
+            "constants and rates in the results are in samples\n"
+        ) in errs[0]
 
 
 def test_every_command_reading_a_record_says_its_time_counts_samples(tmp_path, capsys):
@@ -161,8 +201,11 @@ def test_every_command_reading_a_record_says_its_time_counts_samples(tmp_path, c
     data = tmp_path / "uy.csv"
     data.write_text("u,y\n" + "".join(f"{a!r},{b!r}\n" for a, b in zip(u.tolist(), y.tolist())))
     runs = {
-        "diagnose": ([str(data), "--max-effects", "1", "--candidates", "creep", "--solver", "none"],
-                     "report.json", lambda rep: rep["time_unit"]),
+        "diagnose": (
+            [str(data), "--max-effects", "1", "--candidates", "creep", "--solver", "none"],
+            "report.json",
+            lambda rep: rep["time_unit"],
+        ),
         "estimate": ([str(data), "--plays", "3"], "estimate.json", lambda rep: rep["time_unit"]),
         "simulate": (["--input", "csv", "--csv", str(data)], "simulate.json", lambda rep: rep["input"]["time_unit"]),
     }

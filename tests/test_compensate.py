@@ -29,6 +29,7 @@ def bisection_feedforward(r, w, c, x0, yd):
     x = np.broadcast_to(np.asarray(x0, float), r.shape).copy()
     out = np.empty(len(yd))
     for t, target in enumerate(yd):
+
         def step(ut):
             return np.maximum(ut - r, np.minimum(ut + r, x))
 
@@ -101,26 +102,26 @@ def test_not_invertible_model_is_rejected():
         pj.feedforward(pj.PIOperator([0.0, 1e300], [1e300, 1.0]), yd)
     with pytest.raises(ValueError, match="out of the range of float64: the inverse's weights"):
         pj.feedforward(pj.PIOperator([0.0, 1.0], [1e-300, 1e-300]), yd)
-    with pytest.raises(ValueError, match="must be a PIFit, PIModel, HysteresisModel, PIOperator, "
-                       "GeneralizedPI or Preisach"):
+    with pytest.raises(
+        ValueError, match="must be a PIFit, PIModel, HysteresisModel, PIOperator, GeneralizedPI or Preisach"
+    ):
         pj.feedforward("model", yd)
     with pytest.raises(ValueError, match="`desired` contains NaN"):
         pj.feedforward(pj.PIOperator(R, W), np.full(5, np.nan))
 
 
 def write_model(path, weights=W):
-    model = {"thresholds": R.tolist(), "weights": list(weights), "offset": C,
-             "initial_states": [0.0] * 4}
+    model = {"thresholds": R.tolist(), "weights": list(weights), "offset": C, "initial_states": [0.0] * 4}
     path.write_text(json.dumps(model))
 
 
 def test_cli_compensate(tmp_path, capsys):
     t, yd = desired()
     write_model(tmp_path / "fit.json")
-    np.savetxt(tmp_path / "d.csv", np.column_stack([t, yd]), delimiter=",", header="t,desired",
-               comments="")
-    rc = main(["compensate", str(tmp_path / "fit.json"), str(tmp_path / "d.csv"),
-               "--out", str(tmp_path / "out"), "--quiet"])
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, yd]), delimiter=",", header="t,desired", comments="")
+    rc = main(
+        ["compensate", str(tmp_path / "fit.json"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "out"), "--quiet"]
+    )
     assert rc == 0
     assert len(capsys.readouterr().out.split()) == 3
     data = np.loadtxt(tmp_path / "out" / "compensate.csv", delimiter=",", skiprows=1)
@@ -133,8 +134,7 @@ def test_cli_compensate(tmp_path, capsys):
 def test_cli_compensate_bad_input(tmp_path, capsys):
     t, yd = desired(10)
     write_model(tmp_path / "fit.json")
-    np.savetxt(tmp_path / "d.csv", np.column_stack([t, yd]), delimiter=",", header="t,z",
-               comments="")
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, yd]), delimiter=",", header="t,z", comments="")
     args = [str(tmp_path / "fit.json"), str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]
     assert main(["compensate", *args]) == 2
     assert "no column `y`" in capsys.readouterr().err

@@ -59,12 +59,9 @@ CASES = {
     "inverse": lambda recs: pj.inverse(pj.PIOperator(R, W))(_u()),
     "Creep": lambda recs: pj.Creep(jnp.array([0.1, 1.0]), jnp.array([0.2, 0.1]), 0.01)(_u()),
     "fit_pi": lambda recs: pj.fit_pi(recs[0].u, recs[0].y, 3, n_starts=2),
-    "identify with validation": lambda recs: pj.identify(
-        recs[0], recs[1], model="pi+creep", plays=3, lags=1, starts=2),
-    "compare": lambda recs: pj.compare(pj.fit_pi(recs[0].u, recs[0].y, 3, n_starts=2),
-                                       recs[1].u, recs[1].y),
-    "prediction_band": lambda recs: pj.prediction_band(
-        pj.fit_pi(recs[0].u, recs[0].y, 3, n_starts=2), recs[1].u),
+    "identify with validation": lambda recs: pj.identify(recs[0], recs[1], model="pi+creep", plays=3, lags=1, starts=2),
+    "compare": lambda recs: pj.compare(pj.fit_pi(recs[0].u, recs[0].y, 3, n_starts=2), recs[1].u, recs[1].y),
+    "prediction_band": lambda recs: pj.prediction_band(pj.fit_pi(recs[0].u, recs[0].y, 3, n_starts=2), recs[1].u),
     "feedforward": lambda recs: pj.feedforward(pj.PIOperator(R, W), _u()),
     "GeneralizedPI and its inverse": lambda recs: pj.feedforward(_gpi(), 0.5 * _gpi()(_u())),
     "Preisach and its inverse": lambda recs: pj.feedforward(_preisach(), 0.5 * _preisach()(_u())),
@@ -77,8 +74,7 @@ def _gpi():
 
 def _preisach():
     K, M = 3, 4
-    return pj.Preisach(jnp.linspace(0.1, 1.5, K), jnp.linspace(-2.0, 2.0, M),
-                       jnp.full((K, M), 0.3), 0.1)
+    return pj.Preisach(jnp.linspace(0.1, 1.5, K), jnp.linspace(-2.0, 2.0, M), jnp.full((K, M), 0.3), 0.1)
 
 
 @pytest.mark.parametrize("name", list(CASES))

@@ -60,8 +60,7 @@ def test_jacobian_matches_finite_differences(states, lags):
     names, index = layout.names(3, lags)
     assert index.tolist() == [i for i in range(theta.size) if not (states and i == 6)]
     un = (u - s.u_mid) / s.u_half
-    pred, J = _cov.jacobian(_fit.run, layout, theta, un, s, (x0 - s.u_mid) / s.u_half,
-                            (z0 - s.u_mid) / s.u_half, dt)
+    pred, J = _cov.jacobian(_fit.run, layout, theta, un, s, (x0 - s.u_mid) / s.u_half, (z0 - s.u_mid) / s.u_half, dt)
     full = list(layout.sizes())
     all_names = [f"{n}[{j + (n == 'thresholds')}]" if n != "offset" else n for n, m in full for j in range(m)]
     np.testing.assert_allclose(pred, reference_model(u, theta, all_names, dt, x0, z0), atol=1e-12)
@@ -69,8 +68,9 @@ def test_jacobian_matches_finite_differences(states, lags):
     for i in index:
         h = np.zeros_like(theta)
         h[i] = eps
-        fd = (reference_model(u, theta + h, all_names, dt, x0, z0)
-              - reference_model(u, theta - h, all_names, dt, x0, z0)) / (2 * eps)
+        fd = (
+            reference_model(u, theta + h, all_names, dt, x0, z0) - reference_model(u, theta - h, all_names, dt, x0, z0)
+        ) / (2 * eps)
         np.testing.assert_allclose(np.asarray(J)[:, i], fd, atol=1e-6, err_msg=all_names[i])
 
 
@@ -81,8 +81,7 @@ def test_gauss_newton_is_the_regression_covariance_given_the_thresholds():
     u = signal()
     y = ref.play(u, R, u[0]) @ W + 0.3 + 0.02 * np.random.default_rng(0).standard_normal(u.size)
     f = pj.fit_pi(u, y, 3, thresholds0=R, n_starts=1, covariance="gauss-newton")
-    assert f.parameter_names == ("thresholds[1]", "thresholds[2]", "weights[0]", "weights[1]",
-                                 "weights[2]", "offset")
+    assert f.parameter_names == ("thresholds[1]", "thresholds[2]", "weights[0]", "weights[1]", "weights[2]", "offset")
     S = np.asarray(f.covariance)
     t, lin = slice(0, 2), slice(2, 6)
     cond = S[lin, lin] - S[lin, t] @ np.linalg.solve(S[t, t], S[t, lin])
@@ -200,15 +199,13 @@ def test_creep_parameters_have_standard_errors():
     u = creep_signal(600)
     y = plant(u) + 0.002 * np.random.default_rng(5).standard_normal(u.size)
     f = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, fit_initial_states=True, key=jax.random.key(0))
-    assert f.parameter_names[-3:] == ("creep.time_constants[0]", "creep.weights[0]",
-                                      "creep.initial_states[0]")
+    assert f.parameter_names[-3:] == ("creep.time_constants[0]", "creep.weights[0]", "creep.initial_states[0]")
     assert "initial_states[0]" not in f.parameter_names and "initial_states[2]" in f.parameter_names
     se = dict(zip(f.parameter_names, np.asarray(f.std_errors)))
     assert 0 < se["creep.time_constants[0]"] < 0.1 * float(f.creep.time_constants[0])
     assert np.all(np.isfinite(f.covariance)) and f.covariance.shape == (len(f.parameter_names),) * 2
     # Without covariance the fit is the same and the fields are empty.
-    g = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, fit_initial_states=True, key=jax.random.key(0),
-                  covariance=None)
+    g = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, fit_initial_states=True, key=jax.random.key(0), covariance=None)
     assert g.covariance is None and g.parameter_names == () and g.undetermined_names == ()
     np.testing.assert_allclose(g.thresholds, f.thresholds, rtol=1e-12)
 
@@ -225,8 +222,11 @@ def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, mon
     np.savetxt(tmp_path / "d.csv", np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
     real = pj.fit_pi
     # The solver would move a play out of reach; starting it there and taking no step keeps it.
-    monkeypatch.setattr(identify_module, "fit_pi", lambda u, y, n, **kw: real(
-        u, y, n, thresholds0=[0.0, 0.4, 1.5], n_starts=1, max_steps=1, initial_states=0.0))
+    monkeypatch.setattr(
+        identify_module,
+        "fit_pi",
+        lambda u, y, n, **kw: real(u, y, n, thresholds0=[0.0, 0.4, 1.5], n_starts=1, max_steps=1, initial_states=0.0),
+    )
     out = tmp_path / "o"
     assert main(["fit", str(tmp_path / "d.csv"), "--model", "pi", "--plays", "3", "--out", str(out)]) == 0
     err = capsys.readouterr().err
@@ -252,12 +252,14 @@ def test_a_long_float32_record_keeps_its_rank():
     eps32 = np.finfo(np.float32).eps
     R = np.linalg.qr(J, mode="r")
     assert N * eps32 > 1 / np.linalg.cond(J / np.linalg.norm(J, axis=0))  # the old floor would drop it
-    _, se, deficient, info = _cov.estimate_moments(R, np.eye(4), float(e @ e), N, method="gauss-newton",
-                                                   window=1, eps=eps32)
+    _, se, deficient, info = _cov.estimate_moments(
+        R, np.eye(4), float(e @ e), N, method="gauss-newton", window=1, eps=eps32
+    )
     assert info["rank"] == 4 and not deficient.any() and np.all(np.isfinite(se))
     R2 = np.linalg.qr(np.column_stack([J, J[:, 0]]), mode="r")
-    _, se2, deficient2, info2 = _cov.estimate_moments(R2, np.eye(5), float(e @ e), N, method="gauss-newton",
-                                                      window=1, eps=eps32)
+    _, se2, deficient2, info2 = _cov.estimate_moments(
+        R2, np.eye(5), float(e @ e), N, method="gauss-newton", window=1, eps=eps32
+    )
     assert info2["rank"] == 4 and deficient2.tolist() == [True, False, False, False, True]
 
 
@@ -281,10 +283,15 @@ def test_long_records_give_the_dense_estimate_in_bounded_memory(method, states, 
     window = _cov.bandwidth(e) if method == "newey-west" else 1
     assert method == "gauss-newton" or window > 2
     R, blocks, ete = _cov.moments(_fit.run, layout, theta, un, y, mask, s, xn, zn, dt, window, 64)
-    np.testing.assert_allclose(np.asarray(R).T @ np.asarray(R), np.asarray(J).T @ np.asarray(J), rtol=1e-10,
-                               atol=1e-10)
-    got = _cov.estimate_moments(np.asarray(R)[:, index], np.asarray(blocks)[np.ix_(index, index)],
-                                float(ete), 1000, method=method, window=window)
+    np.testing.assert_allclose(np.asarray(R).T @ np.asarray(R), np.asarray(J).T @ np.asarray(J), rtol=1e-10, atol=1e-10)
+    got = _cov.estimate_moments(
+        np.asarray(R)[:, index],
+        np.asarray(blocks)[np.ix_(index, index)],
+        float(ete),
+        1000,
+        method=method,
+        window=window,
+    )
     # A bound that holds for the factor and for JᵀJ alike (which lose cond(J) and cond(J)^2 eps).
     Js = np.asarray(J)[:, index] / np.linalg.norm(np.asarray(J)[:, index], axis=0)
     rtol = 10 * np.linalg.cond(Js) ** 2 * np.finfo(float).eps

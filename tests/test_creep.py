@@ -53,8 +53,7 @@ def test_associative_equals_scan(rng):
     u = jnp.asarray(rng.standard_normal(257))
     a = jnp.asarray([0.1, 0.9, 0.999])
     z0 = jnp.asarray([0.3, -1.0, 2.0])
-    np.testing.assert_allclose(lag_states(u, a, z0, method="associative"),
-                               lag_states(u, a, z0), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(lag_states(u, a, z0, method="associative"), lag_states(u, a, z0), rtol=1e-10, atol=1e-12)
 
 
 def test_creep_associative_method_equals_scan(rng):

@@ -59,9 +59,7 @@ def test_other_delimiters(tmp_path, delim):
 def test_preamble_and_comments_skipped(tmp_path):
     t, u, y = _rows()
     body = _table(t, u, y).splitlines()
-    text = "Instrument: XY-500\nDate: 2024-01-01\n\n" + "\n".join(
-        body[:4] + ["# a comment", ""] + body[4:]
-    )
+    text = "Instrument: XY-500\nDate: 2024-01-01\n\n" + "\n".join(body[:4] + ["# a comment", ""] + body[4:])
     rec = load_record(_csv(tmp_path, text))
     np.testing.assert_array_equal(rec.t, t)
 
@@ -342,8 +340,12 @@ def test_a_sample_index_with_a_missing_row_is_caught(tmp_path):
 def test_a_time_column_by_another_name_is_not_taken_for_an_index(tmp_path):
     u, y = _uy()
     text = "time,u,y\n" + "".join(f"{0.1 * k!r},{u[k]!r},{y[k]!r}\n" for k in range(20))
-    _fails(tmp_path, text, r"row 1: no time column `t`: the header has time, u, y; name its time, input and "
-                           r"output with columns=")
+    _fails(
+        tmp_path,
+        text,
+        r"row 1: no time column `t`: the header has time, u, y; name its time, input and "
+        r"output with columns=",
+    )
     rec = load_record(_csv(tmp_path, text), columns="time,u,y")
     assert not rec.time_is_index and rec.dt == pytest.approx(0.1)
 
@@ -436,9 +438,17 @@ def test_each_segment_is_checked_on_its_own(tmp_path):
     assert [p.n_samples for p in rec.segments()] == [10, 19, 10]
     np.testing.assert_allclose(np.diff(rec.segments()[1].t), 0.5)
     with pytest.raises(DataError, match=r"segment 1 \(row 12\) has only 3 samples; at least 8"):
-        load_record(_csv(tmp_path, "\n".join(
-            ["segment,t,u,y"] + [f"0,{j},{np.sin(j)},{j}" for j in range(10)]
-            + [f"1,{j},{np.sin(j)},{j}" for j in range(3)]) + "\n"))
+        load_record(
+            _csv(
+                tmp_path,
+                "\n".join(
+                    ["segment,t,u,y"]
+                    + [f"0,{j},{np.sin(j)},{j}" for j in range(10)]
+                    + [f"1,{j},{np.sin(j)},{j}" for j in range(3)]
+                )
+                + "\n",
+            )
+        )
 
 
 def test_a_segment_column_of_an_index_record(tmp_path):

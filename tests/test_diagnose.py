@@ -110,8 +110,13 @@ def test_generator_coloured_noise():
 # both names for two-effect records. experiments/diagnose_confusion.py runs many more records.
 PER_EFFECT = 4
 N_FREE = 8
-PAIRS = [("delay", "asymmetry"), ("linear_dynamics", "offset_drift"), ("creep", "asymmetry"),
-         ("initial_state", "rate_dependence"), ("rate_dependence", "offset_drift")]
+PAIRS = [
+    ("delay", "asymmetry"),
+    ("linear_dynamics", "offset_drift"),
+    ("creep", "asymmetry"),
+    ("initial_state", "rate_dependence"),
+    ("rate_dependence", "offset_drift"),
+]
 PER_PAIR = 2
 
 
@@ -187,8 +192,19 @@ def csv_files(tmp_path_factory):
 
 def test_cli_writes_the_report(csv_files, tmp_path, capsys):
     out = tmp_path / "diag"
-    argv = ["diagnose", str(csv_files[0]), "--validate", str(csv_files[1]), "--out", str(out), "--json",
-            "--candidates", "delay", "--max-effects", "1"]
+    argv = [
+        "diagnose",
+        str(csv_files[0]),
+        "--validate",
+        str(csv_files[1]),
+        "--out",
+        str(out),
+        "--json",
+        "--candidates",
+        "delay",
+        "--max-effects",
+        "1",
+    ]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     rep = json.loads((out / "report.json").read_text())
@@ -218,14 +234,18 @@ def test_cli_writes_the_report(csv_files, tmp_path, capsys):
     u = rep["uncertainty"]
     assert u["values"]["delay.delay_s"] == rep["parameters"]["delay"]["delay_s"]
     assert u["std_errors"]["delay.delay_s"] > 0
-    assert f"| delay.delay_s | {u['values']['delay.delay_s']:.6g} | ± {u['std_errors']['delay.delay_s']:.4g} |" in (
-        out / "report.md").read_text()
+    assert (
+        f"| delay.delay_s | {u['values']['delay.delay_s']:.6g} | ± {u['std_errors']['delay.delay_s']:.4g} |"
+        in (out / "report.md").read_text()
+    )
 
 
 @pytest.mark.parametrize(
     "extra, match",
-    [(["--candidates", "delay,hysteresis"], "unknown effect 'hysteresis'"),
-     (["--max-effects", "0"], "--max-effects must be at least 1")],
+    [
+        (["--candidates", "delay,hysteresis"], "unknown effect 'hysteresis'"),
+        (["--max-effects", "0"], "--max-effects must be at least 1"),
+    ],
 )
 def test_cli_bad_options_are_one_line(csv_files, tmp_path, capsys, extra, match):
     assert main(["diagnose", str(csv_files[0]), "--out", str(tmp_path / "o"), *extra]) == 2
@@ -261,24 +281,56 @@ def test_cli_report_is_the_diagnosis_json(csv_files, tmp_path):
     expected["validation"]["data"] = str(csv_files[1])
     assert list(rep) == list(expected) and list(rep["validation"]) == list(expected["validation"])
     # The order report.json has always had, which `Diagnosis.to_json` documents.
-    assert list(rep) == ["effects", "transferable_effects", "record_specific_effects", "baseline_rmse",
-                         "final_rmse", "noise_std_estimate", "candidates", "parameters", "uncertainty", "refinement",
-                         "rounds", "pruned", "heldout", "n_samples", "search_step", "where", "validation",
-                         "data"]
+    assert list(rep) == [
+        "effects",
+        "transferable_effects",
+        "record_specific_effects",
+        "baseline_rmse",
+        "final_rmse",
+        "noise_std_estimate",
+        "candidates",
+        "parameters",
+        "uncertainty",
+        "refinement",
+        "rounds",
+        "pruned",
+        "heldout",
+        "n_samples",
+        "search_step",
+        "where",
+        "validation",
+        "data",
+    ]
     assert list(rep["validation"]) == [
-        "baseline_rmse", "final_rmse", "baseline_rmse_ic", "final_rmse_ic", "baseline_fit_percent",
-        "final_fit_percent", "baseline_fit_percent_ic", "final_fit_percent_ic", "initial_conditions",
-        "noise_std_estimate", "baseline_rmse_offset_removed", "final_rmse_offset_removed", "effects_used", "data"]
+        "baseline_rmse",
+        "final_rmse",
+        "baseline_rmse_ic",
+        "final_rmse_ic",
+        "baseline_fit_percent",
+        "final_fit_percent",
+        "baseline_fit_percent_ic",
+        "final_fit_percent_ic",
+        "initial_conditions",
+        "noise_std_estimate",
+        "baseline_rmse_offset_removed",
+        "final_rmse_offset_removed",
+        "effects_used",
+        "data",
+    ]
     assert rep == json.loads(json_text(expected))
     assert "_arrays" not in rep and "data" not in d
     # The typed fields are the ones the report and the figure show.
     assert isinstance(d.validation, pj.DiagnosisValidation) and d.record is rec and d.validation.record is val
     assert d.effects == ["delay"] == d.transferable_effects and d.record_specific_effects == []
-    for y, pred, rmse in ((rec.y, d.final_prediction, d.final_rmse), (rec.y, d.baseline_prediction, d.baseline_rmse),
-                          (val.y, d.validation.final_prediction, d.validation.final_rmse)):
+    for y, pred, rmse in (
+        (rec.y, d.final_prediction, d.final_rmse),
+        (rec.y, d.baseline_prediction, d.baseline_rmse),
+        (val.y, d.validation.final_prediction, d.validation.final_rmse),
+    ):
         assert pred.shape == y.shape and np.sqrt(np.mean((pred - y) ** 2)) == pytest.approx(rmse, rel=1e-12)
     assert np.std(val.y - d.validation.baseline_prediction) == pytest.approx(
-        d.validation.baseline_rmse_offset_removed, rel=1e-12)
+        d.validation.baseline_rmse_offset_removed, rel=1e-12
+    )
 
 
 def test_diagnosis_reads_as_its_report():
@@ -288,8 +340,10 @@ def test_diagnosis_reads_as_its_report():
     assert list(d) == list(report) and len(d) == len(report) and dict(d) == report and d == report
     assert d == dataclasses.replace(d, final_prediction=2 * d.final_prediction)  # equal reports
     assert d != dataclasses.replace(d, final_rmse=2 * d.final_rmse)
-    assert d["effects"] == d.effects and d["heldout"] == {"baseline_rmse": d.heldout_baseline_rmse,
-                                                          "final_rmse": d.heldout_final_rmse}
+    assert d["effects"] == d.effects and d["heldout"] == {
+        "baseline_rmse": d.heldout_baseline_rmse,
+        "final_rmse": d.heldout_final_rmse,
+    }
     assert d["candidates"] == d.rounds[0]["candidates"] and set(d.candidates) == {"delay", "creep"}
     assert d["n_samples"] == rec.n_samples == d.n_samples
     assert "validation" not in d and d.get("validation") is None and d.validation is None

@@ -43,7 +43,8 @@ def test_the_report_gives_the_named_effects_errors(delayed):
     assert u["method"] == "newey-west" and u["samples"] == rec.n_samples
     assert list(u["values"]) == ["delay.delay_s", "offset"]
     assert u["values"]["delay.delay_s"] == pytest.approx(
-        pj.diagnose(rec, max_effects=1, candidates=["delay"]).parameters["delay"]["delay_s"], rel=1e-9)
+        pj.diagnose(rec, max_effects=1, candidates=["delay"]).parameters["delay"]["delay_s"], rel=1e-9
+    )
     # A delay of a few samples on a 500-sample record is known to a fraction of a sample.
     dt = float(np.median(np.diff(rec.t)))
     se = u["std_errors"]["delay.delay_s"]

@@ -11,9 +11,21 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_site_builds_strictly(tmp_path):
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
     proc = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"),
-         "-d", str(tmp_path / "site")],
-        capture_output=True, text=True, timeout=600, env=env,
+        [
+            sys.executable,
+            "-m",
+            "mkdocs",
+            "build",
+            "--strict",
+            "-f",
+            str(ROOT / "mkdocs.yml"),
+            "-d",
+            str(tmp_path / "site"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
     )
     assert proc.returncode == 0, proc.stderr[-4000:]
     site = tmp_path / "site"
@@ -30,6 +42,9 @@ def test_every_public_name_has_one_api_entry():
 
     entries = []
     for page in (ROOT / "docs" / "api").glob("*.md"):
-        entries += [line.split("piest_jax.", 1)[1].strip() for line in page.read_text().splitlines()
-                    if line.startswith("::: piest_jax.")]
+        entries += [
+            line.split("piest_jax.", 1)[1].strip()
+            for line in page.read_text().splitlines()
+            if line.startswith("::: piest_jax.")
+        ]
     assert sorted(entries) == sorted(pj._EXPORTS)

@@ -59,9 +59,7 @@ def _problems(name: str) -> list[str]:
         if _parameters(obj) and not is_abstract and not (has_fields or "**Arguments:**" in doc):
             problems.append(f"{name}: class docstring lacks **Arguments:** (or **Fields:**)")
         for attr, member in vars(obj).items():
-            if attr.startswith("_") or not (
-                inspect.isfunction(member) or isinstance(member, property)
-            ):
+            if attr.startswith("_") or not (inspect.isfunction(member) or isinstance(member, property)):
                 continue
             if not inspect.getdoc(getattr(obj, attr, member)) and not _inherited_doc(obj, attr):
                 problems.append(f"{name}.{attr}: no docstring")

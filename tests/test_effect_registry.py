@@ -67,8 +67,11 @@ def test_each_effect_jax_model_matches_its_numpy_model(name):
     # Left out as record-specific, the model is the plain one.
     if name in RECORD_SPECIFIC:
         rest, w_rest = _model.without(cfg, [name], w)
-        np.testing.assert_allclose(_model.predict(p, rest, w_rest, w_rest, norm),
-                                   _model.predict(p, {}, w[: _basis.N_PLAYS + 1], w, norm), atol=1e-14)
+        np.testing.assert_allclose(
+            _model.predict(p, rest, w_rest, w_rest, norm),
+            _model.predict(p, {}, w[: _basis.N_PLAYS + 1], w, norm),
+            atol=1e-14,
+        )
 
 
 @pytest.mark.parametrize("name", EFFECTS)

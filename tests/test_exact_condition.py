@@ -134,8 +134,7 @@ def _dyadic_case(draw):
     if zero_states:
         x0 = np.zeros(n)
     else:
-        x0 = u[0] + r * np.array(draw(st.lists(st.sampled_from([-1.0, -0.5, 0.0, 0.5, 1.0]),
-                                               min_size=n, max_size=n)))
+        x0 = u[0] + r * np.array(draw(st.lists(st.sampled_from([-1.0, -0.5, 0.0, 0.5, 1.0]), min_size=n, max_size=n)))
     window = draw(st.integers(1, len(u)))
     stride = draw(st.integers(1, 5))
     return u, r, x0, window, stride
@@ -160,9 +159,7 @@ def test_theorem2_matches_exact_rank_on_adversarial_inputs(case):
     np.testing.assert_array_equal(np.asarray(ec.holds), ref)
 
 
-@pytest.mark.parametrize(
-    "family", ["sine", "triangle", "steps", "noise", "decaying", "ramp", "touch", "nested"]
-)
+@pytest.mark.parametrize("family", ["sine", "triangle", "steps", "noise", "decaying", "ramp", "touch", "nested"])
 def test_theorem2_matches_exact_rank_on_map_draws(family):
     # Fixed seed, map families: the condition against the rank of the play outputs in exact
     # rational arithmetic (the float Gram's verdict is not the reference: see the next test).
@@ -273,8 +270,9 @@ def test_modular_settlement_equals_the_rational_rank(case):
     # pj.exact_window_pe (exact integer outputs, rank modulo two primes) against the rational
     # reference, on the adversarial cases above.
     u, r, x0, window, stride = case
-    np.testing.assert_array_equal(pj.exact_window_pe(u, r, x0, window, stride=stride),
-                                  exact_window_pe(u, r, x0, window, stride))
+    np.testing.assert_array_equal(
+        pj.exact_window_pe(u, r, x0, window, stride=stride), exact_window_pe(u, r, x0, window, stride)
+    )
 
 
 @pytest.mark.parametrize("family", ["noise", "nested", "touch"])

@@ -27,8 +27,7 @@ def _ref_gram(H, window, stride):
 
 def _ref_ratio(u, r_max, window, stride):
     vals = [
-        (u[s : s + window].max() - u[s : s + window].min()) / (2 * r_max)
-        for s in range(0, len(u) - window + 1, stride)
+        (u[s : s + window].max() - u[s : s + window].min()) / (2 * r_max) for s in range(0, len(u) - window + 1, stride)
     ]
     return min(vals)
 
@@ -63,9 +62,7 @@ def test_assumption1_ratio_matches_loop(values, window, stride):
 def test_windowed_range_per_column_and_excited_plays():
     u = np.concatenate([10 * np.sin(2 * np.pi * 5 * T[:500]), np.full(501, 1.0)])
     H = _regressor(u)
-    rng_ref = np.array(
-        [H[s : s + 100].max(0) - H[s : s + 100].min(0) for s in range(0, 1001 - 100 + 1, 25)]
-    )
+    rng_ref = np.array([H[s : s + 100].max(0) - H[s : s + 100].min(0) for s in range(0, 1001 - 100 + 1, 25)])
     np.testing.assert_allclose(pj.windowed_range(H, 100, stride=25), rng_ref, rtol=1e-12)
     moving = np.asarray(pj.excited_plays(H, 100, stride=25, atol=1e-12))
     assert moving[0].all()  # the sine drives every play

@@ -53,7 +53,8 @@ def test_information_is_the_sum_of_each_levels_rows():
 
 
 thresholds = st.lists(st.floats(0.01, 3.0), min_size=1, max_size=5, unique=True).map(
-    lambda x: np.concatenate([[0.0], np.cumsum(np.sort(x))]))
+    lambda x: np.concatenate([[0.0], np.cumsum(np.sort(x))])
+)
 
 
 @settings(max_examples=25, deadline=None)
@@ -125,8 +126,9 @@ def test_time_to_error_and_worst_case_against_loops():
 
 def test_cli_excite(tmp_path, capsys):
     out = tmp_path / "design"
-    code = main(["excite", "--thresholds", "0,3.3333,6.6667", "--amplitude", "10", "--samples", "3000",
-                 "--out", str(out)])
+    code = main(
+        ["excite", "--thresholds", "0,3.3333,6.6667", "--amplitude", "10", "--samples", "3000", "--out", str(out)]
+    )
     assert code == 0
     rep = json.loads((out / "excite.json").read_text())
     assert rep["design"]["margin"] > rep["sine"]["margin"] > 0
@@ -139,15 +141,18 @@ def test_cli_excite(tmp_path, capsys):
     assert (out / "excite.png").read_bytes()[:4] == b"\x89PNG"
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--thresholds", "0,1,2", "--amplitude", "1.5"], "--amplitude (1.5) must exceed"),
-    (["--thresholds", "0,2,1"], "increase strictly"),
-    (["--thresholds", "0,1", "--weights", "1,2,3"], "--weights has 3 values for 2"),
-    (["--thresholds", "0,1", "--window", "5"], "longer than the window"),
-    (["--thresholds", "0,1", "--frequency", "600"], "Nyquist"),
-    (["--thresholds", "0"], "give --amplitude"),
-    (["--thresholds", "0,1", "--amplitude", "1e300"], "--amplitude (1e+300) is too large"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--thresholds", "0,1,2", "--amplitude", "1.5"], "--amplitude (1.5) must exceed"),
+        (["--thresholds", "0,2,1"], "increase strictly"),
+        (["--thresholds", "0,1", "--weights", "1,2,3"], "--weights has 3 values for 2"),
+        (["--thresholds", "0,1", "--window", "5"], "longer than the window"),
+        (["--thresholds", "0,1", "--frequency", "600"], "Nyquist"),
+        (["--thresholds", "0"], "give --amplitude"),
+        (["--thresholds", "0,1", "--amplitude", "1e300"], "--amplitude (1e+300) is too large"),
+    ],
+)
 def test_cli_excite_errors(tmp_path, capsys, argv, message):
     assert main(["excite", "--samples", "500", "--out", str(tmp_path / "x"), *argv]) == 2
     err = capsys.readouterr().err

@@ -24,8 +24,8 @@ def test_bin_extremes_keep_every_bins_extremes(T, bins, seed):
     k = -(-T // bins)
     assert tb.size <= bins and np.all(np.diff(tb) > 0)
     np.testing.assert_array_equal(tb, t[::k])
-    np.testing.assert_array_equal(lo, [lower[i:i + k].min() for i in range(0, T, k)])
-    np.testing.assert_array_equal(hi, [upper[i:i + k].max() for i in range(0, T, k)])
+    np.testing.assert_array_equal(lo, [lower[i : i + k].min() for i in range(0, T, k)])
+    np.testing.assert_array_equal(hi, [upper[i : i + k].max() for i in range(0, T, k)])
 
 
 def test_loop_stretches_are_spread_over_the_record():

@@ -101,8 +101,7 @@ def test_objective_gradient_matches_finite_differences():
         "offset": jnp.asarray(0.1),
         "initial_states": jnp.asarray([0.05, 0.0, -0.05]),
     }
-    args = (jnp.asarray(un), jnp.asarray(yn), jnp.zeros(3), jnp.ones(200), True, None, None, None,
-            None, None)
+    args = (jnp.asarray(un), jnp.asarray(yn), jnp.zeros(3), jnp.ones(200), True, None, None, None, None, None)
 
     @jax.jit
     def loss(p):
@@ -130,8 +129,7 @@ def test_fit_derivative_matches_finite_differences():
     d = np.concatenate([np.random.default_rng(1).standard_normal(T), np.zeros(pad)])
     d = jnp.asarray(d) / s.y_half
     r0s = _fit._grid(3, 1, un.dtype, None)
-    static = dict(solver="lm", positive_weights=True, fit_initial_states=False, max_steps=100,
-                  rtol=1e-6, atol=1e-9)
+    static = dict(solver="lm", positive_weights=True, fit_initial_states=False, max_steps=100, rtol=1e-6, atol=1e-9)
 
     def fitted(eps):
         p, _, results, _ = _fit._solve_starts(r0s, un, yn + eps * d, x0, mask, None, **static)
@@ -152,8 +150,7 @@ def test_reverse_mode_gradient_through_multistart_fit():
     u, y = record()
     un, yn, mask, s, x0, _ = _fit._prepare(u, y, 3, None, None, None)
     r0s = _fit._grid(3, 2, un.dtype, jax.random.key(0))
-    static = dict(solver="lm", positive_weights=True, fit_initial_states=False, max_steps=100,
-                  rtol=1e-6, atol=1e-9)
+    static = dict(solver="lm", positive_weights=True, fit_initial_states=False, max_steps=100, rtol=1e-6, atol=1e-9)
     coef = jnp.asarray([0.3, -0.7, 1.1, 0.5, -0.2, 0.9])
 
     @jax.jit
@@ -189,8 +186,7 @@ def test_multistart_equals_single_starts(clean):
 
 @pytest.mark.parametrize(
     "options",
-    [{}, {"max_threshold": 1.8, "fit_initial_states": True},
-     {"positive_weights": False, "solver": "gn"}],
+    [{}, {"max_threshold": 1.8, "fit_initial_states": True}, {"positive_weights": False, "solver": "gn"}],
     ids=["plain", "bounded_initial_states", "signed_gauss_newton"],
 )
 def test_padded_fit_equals_unpadded(noisy, options):
@@ -208,8 +204,9 @@ def test_padded_fit_equals_unpadded(noisy, options):
         if steps == 4:
             assert int(a.n_steps) == int(b.n_steps) == 4
         for name in ("thresholds", "weights", "offset", "start_rmse"):
-            np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=tol, atol=1e-9,
-                                       err_msg=f"{name}, {n} plays, {steps} steps")
+            np.testing.assert_allclose(
+                getattr(b, name), getattr(a, name), rtol=tol, atol=1e-9, err_msg=f"{name}, {n} plays, {steps} steps"
+            )
         # The r = 0 play forgets its initial state at the first sample, so only the others count.
         np.testing.assert_allclose(b.initial_states[1:], a.initial_states[1:], rtol=tol, atol=1e-9)
         np.testing.assert_allclose(b(u), a(u), rtol=tol, atol=1e-9)
@@ -351,11 +348,26 @@ def test_cli_fit(tmp_path, capsys, clean):
     write_record(tmp_path / "d.csv", u, y)
     write_record(tmp_path / "v.csv", u[::2], y[::2])
     out = tmp_path / "out"
-    rc = main(["fit", str(tmp_path / "d.csv"), "--plays", "3", "--validate",
-               str(tmp_path / "v.csv"), "--out", str(out), "--quiet"])
+    rc = main(
+        [
+            "fit",
+            str(tmp_path / "d.csv"),
+            "--plays",
+            "3",
+            "--validate",
+            str(tmp_path / "v.csv"),
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert rc == 0
     assert sorted(p.split("/")[-1] for p in capsys.readouterr().out.split()) == [
-        "fit.json", "fit.md", "fit.png", "validation.png"]
+        "fit.json",
+        "fit.md",
+        "fit.png",
+        "validation.png",
+    ]
     rep = __import__("json").loads((out / "fit.json").read_text())
     np.testing.assert_allclose(rep["thresholds"], f.thresholds, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(rep["weights"], f.weights, rtol=1e-9)
@@ -381,8 +393,20 @@ def test_cli_fit(tmp_path, capsys, clean):
     # Refuses to overwrite; --plays auto picks 3 among 2 and 3.
     assert main(["fit", str(tmp_path / "d.csv"), "--plays", "3", "--out", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err
-    rc = main(["fit", str(tmp_path / "d.csv"), "--plays", "auto", "--candidates", "2,3",
-               "--out", str(out), "--force", "--quiet"])
+    rc = main(
+        [
+            "fit",
+            str(tmp_path / "d.csv"),
+            "--plays",
+            "auto",
+            "--candidates",
+            "2,3",
+            "--out",
+            str(out),
+            "--force",
+            "--quiet",
+        ]
+    )
     assert rc == 0
     rep = __import__("json").loads((out / "fit.json").read_text())
     assert rep["n_plays"] == 3 and rep["selection"]["candidates"] == [2, 3]
@@ -390,8 +414,20 @@ def test_cli_fit(tmp_path, capsys, clean):
     yt = y.copy()
     yt[:40] += 3.0 * np.exp(-np.arange(40) / 8.0)
     write_record(tmp_path / "transient.csv", u, yt)
-    rc = main(["fit", str(tmp_path / "transient.csv"), "--plays", "3", "--fit-from", "0.2",
-               "--out", str(out), "--force", "--quiet"])
+    rc = main(
+        [
+            "fit",
+            str(tmp_path / "transient.csv"),
+            "--plays",
+            "3",
+            "--fit-from",
+            "0.2",
+            "--out",
+            str(out),
+            "--force",
+            "--quiet",
+        ]
+    )
     assert rc == 0
     rep = __import__("json").loads((out / "fit.json").read_text())
     assert rep["fit_from"] == 0.2 and rep["n_fitted_samples"] == T - 40
@@ -420,13 +456,14 @@ def test_cli_fit_bad_input(tmp_path, capsys):
     assert "10 samples are too few to choose among --candidates 5,6" in capsys.readouterr().err
     write_record(tmp_path / "d.csv", u, y)
     assert main(["fit", str(tmp_path / "d.csv"), "--fit-from", "99", "--out", out]) == 2
-    assert "no sample at or after --fit-from 99 (the record ends at t = 1.995)" in (
-        capsys.readouterr().err)
-    assert main(["fit", str(tmp_path / "d.csv"), "--fit-from", "1.97", "--candidates", "3",
-                 "--out", out]) == 2
+    assert "no sample at or after --fit-from 99 (the record ends at t = 1.995)" in (capsys.readouterr().err)
+    assert main(["fit", str(tmp_path / "d.csv"), "--fit-from", "1.97", "--candidates", "3", "--out", out]) == 2
     assert "6 samples from --fit-from on are too few to choose" in capsys.readouterr().err
-    for argv, needle in [(["--plays", "many"], "or 'auto'"), (["--candidates", "2,x"], "2,3,4"),
-                         (["--candidates", "2,2"], "repeated")]:
+    for argv, needle in [
+        (["--plays", "many"], "or 'auto'"),
+        (["--candidates", "2,x"], "2,3,4"),
+        (["--candidates", "2,2"], "repeated"),
+    ]:
         with pytest.raises(SystemExit) as e:
             main(["fit", str(tmp_path / "flat.csv"), *argv, "--out", out])
         assert e.value.code == 2

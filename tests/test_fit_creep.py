@@ -160,8 +160,23 @@ def test_cli_fit_and_compensate_with_creep(tmp_path, capsys):
     uv = signal(600, phase=1.0)
     write_record(tmp_path / "v.csv", uv, plant(uv, offset=0.8))
     out = tmp_path / "out"
-    rc = main(["fit", str(tmp_path / "d.csv"), "--model", "pi+creep", "--plays", "3", "--lags",
-               "1", "--validate", str(tmp_path / "v.csv"), "--out", str(out), "--quiet"])
+    rc = main(
+        [
+            "fit",
+            str(tmp_path / "d.csv"),
+            "--model",
+            "pi+creep",
+            "--plays",
+            "3",
+            "--lags",
+            "1",
+            "--validate",
+            str(tmp_path / "v.csv"),
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert rc == 0
     capsys.readouterr()
     rep = json.loads((out / "fit.json").read_text())
@@ -190,16 +205,17 @@ def test_cli_fit_and_compensate_with_creep(tmp_path, capsys):
     # piest compensate reads the creep and inverts PI + creep.
     t = DT * np.arange(300)
     yd = plant(u)[0] + 1.5 * np.sin(2 * np.pi * 0.4 * t) ** 2
-    np.savetxt(tmp_path / "yd.csv", np.column_stack([t, yd]), delimiter=",", header="t,desired",
-               comments="")
-    rc = main(["compensate", str(out / "fit.json"), str(tmp_path / "yd.csv"), "--out",
-               str(tmp_path / "ff"), "--quiet"])
+    np.savetxt(tmp_path / "yd.csv", np.column_stack([t, yd]), delimiter=",", header="t,desired", comments="")
+    rc = main(["compensate", str(out / "fit.json"), str(tmp_path / "yd.csv"), "--out", str(tmp_path / "ff"), "--quiet"])
     assert rc == 0
     data = np.loadtxt(tmp_path / "ff" / "compensate.csv", delimiter=",", skiprows=1)
     x0 = np.asarray(pj.admissible_states(rep["thresholds"], rep["initial_states"]))
-    ref = (reference_pi(data[:, 2], np.asarray(rep["thresholds"]), np.asarray(rep["weights"]), x0)
-           + reference_lags(data[:, 2], rep["creep"]["time_constants"], DT, data[0, 2])
-           @ np.asarray(rep["creep"]["weights"]) + rep["offset"])
+    ref = (
+        reference_pi(data[:, 2], np.asarray(rep["thresholds"]), np.asarray(rep["weights"]), x0)
+        + reference_lags(data[:, 2], rep["creep"]["time_constants"], DT, data[0, 2])
+        @ np.asarray(rep["creep"]["weights"])
+        + rep["offset"]
+    )
     np.testing.assert_allclose(ref, yd, atol=1e-8)
     np.testing.assert_allclose(data[:, 3], yd, atol=1e-8)
 
@@ -258,8 +274,18 @@ def test_residual_gradient_with_lags_matches_finite_differences():
         "lag_weights": jnp.asarray([0.4, -0.3]),
         "lag_states": jnp.asarray([0.05, -0.1]),
     }
-    args = (un, yn, jnp.zeros(3), jnp.ones(200), True, None, None, jnp.zeros(2), None,
-            jnp.log(jnp.asarray([2.0, 2.0 * np.sqrt(10.0)])))
+    args = (
+        un,
+        yn,
+        jnp.zeros(3),
+        jnp.ones(200),
+        True,
+        None,
+        None,
+        jnp.zeros(2),
+        None,
+        jnp.log(jnp.asarray([2.0, 2.0 * np.sqrt(10.0)])),
+    )
 
     @jax.jit
     def loss(p):
@@ -268,8 +294,12 @@ def test_residual_gradient_with_lags_matches_finite_differences():
     flat, unravel = jax.flatten_util.ravel_pytree(params)
     g = jax.flatten_util.ravel_pytree(jax.grad(loss)(params))[0]
     eps = 1e-6
-    fd = np.array([(loss(unravel(flat.at[i].add(eps))) - loss(unravel(flat.at[i].add(-eps))))
-                   / (2 * eps) for i in range(flat.shape[0])])
+    fd = np.array(
+        [
+            (loss(unravel(flat.at[i].add(eps))) - loss(unravel(flat.at[i].add(-eps)))) / (2 * eps)
+            for i in range(flat.shape[0])
+        ]
+    )
     np.testing.assert_allclose(g, fd, rtol=1e-5, atol=1e-9)
 
 

@@ -10,14 +10,12 @@ import piest_jax as pj
 def record(T=400, amp=3.0, seed=0):
     t = np.linspace(0.0, 1.0, T)
     phase = np.random.default_rng(seed).uniform(0, 2 * np.pi)
-    return 1.0 + amp * np.sin(2 * np.pi * 4 * t) * (0.2 + 0.8 * np.abs(np.sin(2 * np.pi * 1.3 * t
-                                                                                 + phase)))
+    return 1.0 + amp * np.sin(2 * np.pi * 4 * t) * (0.2 + 0.8 * np.abs(np.sin(2 * np.pi * 1.3 * t + phase)))
 
 
 def truth(u0):
     pi = pj.PIOperator(np.array([0.0, 0.4, 1.0]), np.array([0.8, 0.5, 0.3]), u0)
-    return pj.GeneralizedPI(pi, np.array([2.0, 0.7]), np.array([0.3, 1.5]), np.array([1.0, 2.5]),
-                            0.5)
+    return pj.GeneralizedPI(pi, np.array([2.0, 0.7]), np.array([0.3, 1.5]), np.array([1.0, 2.5]), 0.5)
 
 
 def test_recovers_the_generating_parameters():
@@ -27,9 +25,14 @@ def test_recovers_the_generating_parameters():
     assert f.result_name == "successful"
     assert float(f.rmse) < 1e-9
     m, n = f.model, g.normalised()
-    for a, b in ((m.pi.thresholds, n.pi.thresholds), (m.pi.weights, n.pi.weights),
-                 (m.amplitudes, n.amplitudes), (m.centres, n.centres), (m.scales, n.scales),
-                 (m.offset, n.offset)):
+    for a, b in (
+        (m.pi.thresholds, n.pi.thresholds),
+        (m.pi.weights, n.pi.weights),
+        (m.amplitudes, n.amplitudes),
+        (m.centres, n.centres),
+        (m.scales, n.scales),
+        (m.offset, n.offset),
+    ):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-8)
 
 

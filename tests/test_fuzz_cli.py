@@ -127,9 +127,12 @@ def _bad_files():
         ("inf", edit(200, f"{float(t[198])!r},1,-inf"), "row 200: column `y` holds -inf"),
         ("repeat_t", edit(9, f"{float(t[6])!r},1,1"), "row 9: time is not strictly increasing"),
         ("backwards_t", edit(50, "0.2,1,1"), "row 50: time is not strictly increasing: t = 0.2 goes backwards"),
-        ("gap", "t,u,y\n" + "".join(f"{float(a + (a > 1) * 0.5)!r},{float(b)!r},{float(c)!r}\n"
-                                     for a, b, c in zip(t, u, y)),
-         "row 103: non-uniform sampling"),
+        (
+            "gap",
+            "t,u,y\n"
+            + "".join(f"{float(a + (a > 1) * 0.5)!r},{float(b)!r},{float(c)!r}\n" for a, b, c in zip(t, u, y)),
+            "row 103: non-uniform sampling",
+        ),
         ("one_sample", "t,u,y\n0,1,2\n", "only 1 sample"),
         ("short_row", edit(5, "0.03,1"), "row 5: expected 3 cells as in the header, found 2"),
         ("binary", bytes(range(256)) * 3, "is not a text (UTF-8) CSV file"),
@@ -186,8 +189,10 @@ def test_missing_file_and_folder(command, bad_dir, tmp_path, capsys):
         ('{"thresholds": [0, 0.5], "weights": [NaN, 1]}', "must be finite"),
         ({"thresholds": [[0.0, 0.5]], "weights": [[1.0, 1.0]]}, "must be equal vectors"),
         ({"thresholds": [], "weights": []}, "the model has no plays"),
-        ({"thresholds": [0.0, 0.5], "weights": [1.0, 1.0], "initial_states": [1, 2, 3]},
-         "initial_states has 3 entries for 2 plays"),
+        (
+            {"thresholds": [0.0, 0.5], "weights": [1.0, 1.0], "initial_states": [1, 2, 3]},
+            "initial_states has 3 entries for 2 plays",
+        ),
         ({"thresholds": [0.0, 0.5], "weights": [1.0, 1.0], "offset": "x"}, "must be numbers"),
         ({"thresholds": [0.0, 0.5], "weights": [1.0, -2.0]}, "not invertible"),
         ({"thresholds": [0.0, 0.5], "weights": [0.0, 0.0]}, "not invertible"),
@@ -220,8 +225,22 @@ def test_simulate_on_constant_tiny_and_huge_inputs_is_correct(tmp_path, capsys):
         src = tmp_path / f"{name}.csv"
         src.write_text(_table(t, u, np.zeros_like(u)))
         out = tmp_path / f"o_{name}"
-        code, o, err = _run(capsys, ["simulate", "--input", "csv", "--csv", str(src), "--out", str(out),
-                                     "--thresholds", "0,0.25,0.5", "--weights", "1,0.5,0.25"])
+        code, o, err = _run(
+            capsys,
+            [
+                "simulate",
+                "--input",
+                "csv",
+                "--csv",
+                str(src),
+                "--out",
+                str(out),
+                "--thresholds",
+                "0,0.25,0.5",
+                "--weights",
+                "1,0.5,0.25",
+            ],
+        )
         assert code == 0, err
         data = np.loadtxt(out / "simulate.csv", delimiter=",", skiprows=1)
         np.testing.assert_array_equal(data[:, 1], u)
@@ -241,8 +260,10 @@ def test_fit_finds_the_model_in_the_users_units_at_any_scale(tmp_path, capsys):
         src = tmp_path / "rec.csv"
         src.write_text(_table(t, su * u, sy * y))
         out = tmp_path / f"o{su:g}"
-        code, o, err = _run(capsys, ["fit", str(src), "--plays", "2", "--starts", "2", "--max-steps", "60",
-                                     "--out", str(out), "--quiet"])
+        code, o, err = _run(
+            capsys,
+            ["fit", str(src), "--plays", "2", "--starts", "2", "--max-steps", "60", "--out", str(out), "--quiet"],
+        )
         assert code == 0, err
         rep = json.loads((out / "fit.json").read_text(), parse_constant=lambda c: pytest.fail(c))
         np.testing.assert_allclose(np.array(rep["thresholds"]) / su, [0.0, 0.6], atol=1e-6)
@@ -261,8 +282,9 @@ def test_fit_on_flat_records(tmp_path, capsys):
     flat_y = tmp_path / "flat_y.csv"
     flat_y.write_text(_table(t, u, np.full_like(y, -2.0)))
     out = tmp_path / "b"
-    code, o, err = _run(capsys, ["fit", str(flat_y), "--plays", "2", "--starts", "2", "--max-steps", "60",
-                                 "--out", str(out), "--quiet"])
+    code, o, err = _run(
+        capsys, ["fit", str(flat_y), "--plays", "2", "--starts", "2", "--max-steps", "60", "--out", str(out), "--quiet"]
+    )
     assert code == 0, err
     rep = json.loads((out / "fit.json").read_text(), parse_constant=lambda c: pytest.fail(c))
     assert rep["offset"] == pytest.approx(-2.0, abs=1e-2)
@@ -276,8 +298,16 @@ def test_compensate_inverts_in_the_users_units_at_any_scale(tmp_path, capsys):
     first = None
     for su, sy in SCALE_PAIRS:
         model = tmp_path / "fit.json"
-        model.write_text(json.dumps({"thresholds": (su * r).tolist(), "weights": (w * sy / su).tolist(),
-                                     "offset": c * sy, "initial_states": [0.0, 0.0, 0.0]}))
+        model.write_text(
+            json.dumps(
+                {
+                    "thresholds": (su * r).tolist(),
+                    "weights": (w * sy / su).tolist(),
+                    "offset": c * sy,
+                    "initial_states": [0.0, 0.0, 0.0],
+                }
+            )
+        )
         desired = tmp_path / "desired.csv"
         desired.write_text("t,desired\n" + "".join(f"{a!r},{b!r}\n" for a, b in zip(t.tolist(), (sy * yd).tolist())))
         out = tmp_path / f"o{su:g}"
@@ -460,8 +490,9 @@ _CELLS = st.one_of(
     delim=st.sampled_from([",", ";", "\t"]),
     preamble=st.booleans(),
 )
-def test_random_files_through_every_data_command(fuzz_inputs, tmp_path_factory, capsys, command, header, body,
-                                                  delim, preamble):
+def test_random_files_through_every_data_command(
+    fuzz_inputs, tmp_path_factory, capsys, command, header, body, delim, preamble
+):
     # Whatever the file holds, a command either accepts it and starts computing, or stops with one
     # line naming the file, exit 2, nothing written.
     d = tmp_path_factory.mktemp("rnd")
@@ -489,7 +520,9 @@ def test_the_installed_piest_script_fails_in_one_line(tmp_path):
     bad.write_text("Instrument X\nt,u,y\n0,1,2\n0.1,oops,3\n")
     proc = subprocess.run(
         [script, "simulate", "--input", "csv", "--csv", str(bad), "--out", str(tmp_path / "o")],
-        capture_output=True, text=True, timeout=300,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert proc.returncode == 2
     assert proc.stdout == ""

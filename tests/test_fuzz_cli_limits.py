@@ -35,8 +35,11 @@ def _started(*args, **kwargs):
 
 # Where each command's computation starts.
 _STARTS = [
-    (fit_cmd, "identify"), (_diagnose, "diagnose"),
-    (compensate_cmd, "feedforward"), (montecarlo_cmd, "pe_map"), (_online, "estimate_record"),
+    (fit_cmd, "identify"),
+    (_diagnose, "diagnose"),
+    (compensate_cmd, "feedforward"),
+    (montecarlo_cmd, "pe_map"),
+    (_online, "estimate_record"),
     (simulate_cmd.PIOperator, "regressor"),
 ]
 
@@ -51,8 +54,13 @@ def files(tmp_path):
     model = tmp_path / "model.json"
     model.write_text(json.dumps(MODEL))
     seg = tmp_path / "seg.csv"
-    seg.write_text("segment,t,u,y\n" + "".join(f"{k // 100},{a!r},{b!r},{c!r}\n" for k, (a, b, c) in
-                                               enumerate(zip((T % 1).tolist(), U.tolist(), Y.tolist()))))
+    seg.write_text(
+        "segment,t,u,y\n"
+        + "".join(
+            f"{k // 100},{a!r},{b!r},{c!r}\n"
+            for k, (a, b, c) in enumerate(zip((T % 1).tolist(), U.tolist(), Y.tolist()))
+        )
+    )
     return {"rec": str(rec), "gap": str(gap), "model": str(model), "seg": str(seg), "dir": tmp_path}
 
 
@@ -80,47 +88,63 @@ def _refused(capsys, argv, needle, out):
 # (argv with {rec}, {gap}, {model} placeholders, what the message must say)
 CASES = [
     # options a mode ignores
-    (["fit", "{rec}", "--plays", "2", "--candidates", "3,4", "--criterion", "bic"],
-     "--candidates is used only by --plays auto; --plays 2 fixes the number of plays"),
+    (
+        ["fit", "{rec}", "--plays", "2", "--candidates", "3,4", "--criterion", "bic"],
+        "--candidates is used only by --plays auto; --plays 2 fixes the number of plays",
+    ),
     (["fit", "{rec}", "--plays", "2", "--criterion", "holdout"], "--criterion is used only by --plays auto"),
     (["fit", "{rec}", "--model", "pi", "--lags", "2"], "--lags needs --model pi+creep or auto"),
     (["fit", "{rec}", "--lags", "2", "--time-constants", "0.5"], "give either --lags or --time-constants"),
-    (["estimate", "{rec}", "--estimator", "gradient", "--P0", "5"],
-     "--P0 is a setting of --estimator rls or forgetting, not of --estimator gradient"),
+    (
+        ["estimate", "{rec}", "--estimator", "gradient", "--P0", "5"],
+        "--P0 is a setting of --estimator rls or forgetting, not of --estimator gradient",
+    ),
     (["estimate", "{rec}", "--gain", "2"], "--gain is a setting of --estimator gradient, not of --estimator rls"),
     (["estimate", "{rec}", "--forgetting", "0.9"], "--forgetting is a setting of --estimator forgetting"),
-    (["estimate", "{rec}", "--estimator", "forgetting", "--normalisation", "standard"],
-     "--normalisation is a setting of --estimator rls"),
+    (
+        ["estimate", "{rec}", "--estimator", "forgetting", "--normalisation", "standard"],
+        "--normalisation is a setting of --estimator rls",
+    ),
     (["simulate", "--columns", "a,b,c"], "--columns is only used with --input csv"),
-    (["simulate", "--input", "csv", "--csv", "{rec}", "--amplitude", "3"],
-     "--amplitude describes a generated input; --input csv takes t and u from {rec}"),
+    (
+        ["simulate", "--input", "csv", "--csv", "{rec}", "--amplitude", "3"],
+        "--amplitude describes a generated input; --input csv takes t and u from {rec}",
+    ),
     (["simulate", "--input", "csv", "--csv", "{rec}", "--dt", "0.5"], "--dt describes a generated input"),
     # non-finite values named at parse time, before any fit
     (["fit", "{rec}", "--initial-states", "nan"], "argument --initial-states: must be a finite number, got nan"),
     (["fit", "{rec}", "--fit-from", "inf"], "argument --fit-from: must be a finite number, got inf"),
-    (["compensate", "{model}", "{rec}", "--initial-states", "nan"],
-     "argument --initial-states: must be a finite number, got nan"),
+    (
+        ["compensate", "{model}", "{rec}", "--initial-states", "nan"],
+        "argument --initial-states: must be a finite number, got nan",
+    ),
     (["simulate", "--offset", "nan"], "argument --offset: must be a finite number"),
     # degenerate signals
     (["simulate", "--frequency", "0"], "--frequency 0 Hz: a frequency must be positive (0 Hz gives a constant input"),
     (["simulate", "--frequency=-2"], "--frequency -2 Hz: a frequency must be positive"),
-    (["simulate", "--frequency", "500"],
-     "--frequency 500 Hz is at or above the Nyquist frequency 500 Hz of --dt 0.001"),
+    (
+        ["simulate", "--frequency", "500"],
+        "--frequency 500 Hz is at or above the Nyquist frequency 500 Hz of --dt 0.001",
+    ),
     (["simulate", "--frequency", "1000"], "at or above the Nyquist frequency"),
     (["simulate", "--input", "triangle", "--frequency", "5", "--dt", "0.1"], "--frequency 5 Hz is at or above"),
     (["simulate", "--input", "multisine", "--amplitude", "1,2", "--frequency", "3,600"], "--frequency 600 Hz"),
     (["simulate", "--input", "chirp", "--frequency", "800"], "--frequency 800 Hz"),
     # seeds and counts out of range, at parse time
-    (["fit", "{rec}", "--seed", "99999999999999999999999"],
-     "argument --seed: a seed is a whole number from 0 to 2^63 - 1"),
+    (
+        ["fit", "{rec}", "--seed", "99999999999999999999999"],
+        "argument --seed: a seed is a whole number from 0 to 2^63 - 1",
+    ),
     (["montecarlo", "--seed", "99999999999999999999999"], "argument --seed: a seed is a whole number"),
     (["montecarlo", "--seed", "-1"], "argument --seed: a seed is a whole number"),
     (["fit", "{rec}", "--starts", "1_000"], "argument --starts: expected a whole number, got '1_000'"),
     (["montecarlo", "--inputs", "99999999999"], "argument --inputs: must be at most 2147483647"),
     (["montecarlo", "--samples", "\u0661\u0662"], "argument --samples: expected a whole number"),
     # sizes checked before the work
-    (["fit", "{rec}", "--starts", "1000000"],
-     "--starts 1000000 on {rec} (300 samples, up to 40 parameters) needs about"),
+    (
+        ["fit", "{rec}", "--starts", "1000000"],
+        "--starts 1000000 on {rec} (300 samples, up to 40 parameters) needs about",
+    ),
     (["montecarlo", "--samples", "1000000000"], "--samples 1000000000 with --plays 10 needs about"),
     (["montecarlo", "--plays", "100000"], "--samples 5000 with --plays 100000 needs about"),
     (["estimate", "{rec}", "--plays", "100000"], "100001 weights (100000 plays) on {rec} needs about"),
@@ -129,17 +153,22 @@ CASES = [
     (["diagnose", "{gap}"], "(CLI: --resample)"),
     (["estimate", "{gap}"], "(CLI: --resample)"),
     # a record of several segments: no command runs across their boundaries
-    (["fit", "{seg}", "--plays", "2"], "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not "
-     "continuous in time, and the plays' memory would run on from one into the next; choose one with --segment"),
+    (
+        ["fit", "{seg}", "--plays", "2"],
+        "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not "
+        "continuous in time, and the plays' memory would run on from one into the next; choose one with --segment",
+    ),
     (["diagnose", "{seg}"], "{seg} holds 3 segments"),
     (["estimate", "{seg}"], "{seg} holds 3 segments"),
     (["simulate", "--input", "csv", "--csv", "{seg}"], "{seg} holds 3 segments"),
     (["fit", "{seg}", "--segment", "5"], "{seg}: no segment labelled 5; the labels are 0, 1, 2"),
     (["fit", "{rec}", "--segment", "0"], "{rec}: no `segment` column to select segment 0 from"),
     (["simulate", "--segment", "1"], "--segment is only used with --input csv"),
-    (["fit", "{seg}", "--segment", "1", "--validate", "{seg}"],
-     "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not continuous in time, and the plays' "
-     "memory would run on from one into the next; give a record of one segment to --validate"),
+    (
+        ["fit", "{seg}", "--segment", "1", "--validate", "{seg}"],
+        "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not continuous in time, and the plays' "
+        "memory would run on from one into the next; give a record of one segment to --validate",
+    ),
     (["fit", "{seg}", "--segment", "nan"], "argument --segment: must be a finite number"),
 ]
 
@@ -150,8 +179,9 @@ def test_each_case_is_refused_in_one_line(argv, needle, files, capsys):
     _refused(capsys, argv, needle.format(**files), files["dir"] / "o")
 
 
-@pytest.mark.parametrize("command", ["simulate", "fit", "diagnose", "compensate", "estimate", "montecarlo",
-                                     "reproduce"])
+@pytest.mark.parametrize(
+    "command", ["simulate", "fit", "diagnose", "compensate", "estimate", "montecarlo", "reproduce"]
+)
 def test_an_empty_out_is_refused(command, files, capsys):
     first = {"simulate": [], "montecarlo": [], "reproduce": ["fig5"], "compensate": [files["model"], files["rec"]]}
     argv = [command, *first.get(command, [files["rec"]])]
@@ -162,15 +192,17 @@ def test_an_empty_out_is_refused(command, files, capsys):
 def test_an_unwritable_out_is_found_before_the_computation(files, capsys):
     # /proc/self is a folder that no one, root included, can create files in.
     code, o, err = _run(capsys, ["fit", files["rec"], "--out", "/proc/self"])
-    assert (code, o) == (2, "") and err.startswith("piest fit: error: --out /proc/self: cannot write there (it takes "
-                                                    "no new files)"), err
+    assert (code, o) == (2, "") and err.startswith(
+        "piest fit: error: --out /proc/self: cannot write there (it takes no new files)"
+    ), err
     assert ".tmp" not in err
 
 
 def test_a_gap_is_resampled_where_the_message_says(files, capsys):
     out = files["dir"] / "o"
-    code, _, err = _run(capsys, ["simulate", "--input", "csv", "--csv", files["gap"], "--resample", "--out", str(out)],
-                        stop=False)
+    code, _, err = _run(
+        capsys, ["simulate", "--input", "csv", "--csv", files["gap"], "--resample", "--out", str(out)], stop=False
+    )
     assert code == 0, err
     data = np.loadtxt(out / "simulate.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(np.diff(data[:, 0]), 0.01, rtol=1e-9)
@@ -184,9 +216,12 @@ def test_a_gap_is_resampled_where_the_message_says(files, capsys):
         (json.dumps(MODEL | {"thresholds": [0, True]}), "`thresholds` holds true or false"),
         (json.dumps(MODEL).replace('"offset": 0.1', '"offset": ' + "9" * 400), "must be finite"),
         ("[" * 100_000 + "]" * 100_000, "not a model file (nested too deeply)"),
-        (json.dumps(MODEL | {"structure": "pi+creep", "creep": {"time_constants": [1.0], "weights": [True],
-                                                                "dt": 0.01}}),
-         "creep: `weights` holds true or false"),
+        (
+            json.dumps(
+                MODEL | {"structure": "pi+creep", "creep": {"time_constants": [1.0], "weights": [True], "dt": 0.01}}
+            ),
+            "creep: `weights` holds true or false",
+        ),
     ],
 )
 def test_model_files_are_read_with_limits(text, needle, files, capsys):
@@ -214,8 +249,9 @@ def test_sizes_against_a_small_machine(files, capsys, monkeypatch):
     monkeypatch.setattr(memory, "available_bytes", lambda: 2**19)
     big = files["dir"] / "big.json"
     n = 4000
-    big.write_text(json.dumps({"thresholds": np.linspace(0, 2, n, endpoint=False).tolist(),
-                               "weights": [1.0] * n, "offset": 0.0}))
+    big.write_text(
+        json.dumps({"thresholds": np.linspace(0, 2, n, endpoint=False).tolist(), "weights": [1.0] * n, "offset": 0.0})
+    )
     cases = [
         (["compensate", str(big), files["rec"]], f"{big} (4000 plays) on {files['rec']} (300 samples) needs about"),
         (["simulate", "--plays", "200", "--r-max", "1"], "1001 samples x 200 plays needs about"),
@@ -252,8 +288,25 @@ def test_compensation_outside_the_fitted_range_is_reported(files, capsys):
 
 def test_fit_records_the_input_range_it_saw(files, capsys):
     out = files["dir"] / "o"
-    code, _, err = _run(capsys, ["fit", files["rec"], "--model", "pi", "--plays", "2", "--starts", "2",
-                                 "--max-steps", "20", "--quiet", "--out", str(out)], stop=False)
+    code, _, err = _run(
+        capsys,
+        [
+            "fit",
+            files["rec"],
+            "--model",
+            "pi",
+            "--plays",
+            "2",
+            "--starts",
+            "2",
+            "--max-steps",
+            "20",
+            "--quiet",
+            "--out",
+            str(out),
+        ],
+        stop=False,
+    )
     assert code == 0, err
     assert json.loads((out / "fit.json").read_text())["input_range"] == [float(U.min()), float(U.max())]
 
@@ -271,8 +324,10 @@ def test_a_failed_write_names_the_result_not_the_temporary(files, capsys, monkey
     out = files["dir"] / "o"
     code, o, err = _run(capsys, ["simulate", "--duration", "0.05", "--out", str(out)], stop=False)
     assert (code, o) == (2, "")
-    assert err == f"piest simulate: error: {out / 'simulate.csv'}: cannot write it (No space left on device); " \
+    assert (
+        err == f"piest simulate: error: {out / 'simulate.csv'}: cannot write it (No space left on device); "
         "nothing was written\n"
+    )
     assert not out.exists()
 
 

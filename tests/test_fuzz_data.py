@@ -100,8 +100,17 @@ def _damage(kind, k, t, u, y):
 
 
 KINDS = [
-    "text", "empty_cell", "missing_cell", "extra_cell", "nan_u", "inf_y", "-inf_t", "overflow",
-    "repeat_t", "backwards_t", "gap",
+    "text",
+    "empty_cell",
+    "missing_cell",
+    "extra_cell",
+    "nan_u",
+    "inf_y",
+    "-inf_t",
+    "overflow",
+    "repeat_t",
+    "backwards_t",
+    "gap",
 ]
 PREAMBLES = [(), ("Instrument: scope 3", "Channel 1; 10 V", ""), ("# exported", "# by hand")]
 
@@ -145,8 +154,10 @@ def test_every_damaged_file_names_file_row_and_problem(tmp_path):
         ("t,u,x\n0,1,2\n", r", row 1: missing column\(s\) y: the header has t, u, x"),
         ("t,u,y,u\n0,1,2,3\n", r", row 1: duplicated column name\(s\) in the header: u"),
         ("t,u,y\n0,1,2\n", r": only 1 sample; at least 8 are needed"),
-        ("t,u,y,note\n" + "".join(f"{k},1,2,ok\n" for k in range(9)),
-         r", row 2: cell 4 is not a number: 'ok' \(column `note`\)"),
+        (
+            "t,u,y,note\n" + "".join(f"{k},1,2,ok\n" for k in range(9)),
+            r", row 2: cell 4 is not a number: 'ok' \(column `note`\)",
+        ),
     ],
 )
 def test_structural_problems(tmp_path, text, pattern):
@@ -154,8 +165,11 @@ def test_structural_problems(tmp_path, text, pattern):
 
 
 def test_missing_folder_and_device(tmp_path):
-    for path, pattern in [(tmp_path / "absent.csv", "no such file"), (tmp_path, "is a folder, not a data file"),
-                          ("/dev/null", "is not a regular file")]:
+    for path, pattern in [
+        (tmp_path / "absent.csv", "no such file"),
+        (tmp_path, "is a folder, not a data file"),
+        ("/dev/null", "is not a regular file"),
+    ]:
         with pytest.raises(DataError, match=f"^{re.escape(str(path))}: {pattern}$"):
             load_record(path)
 

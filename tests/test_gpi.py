@@ -21,10 +21,8 @@ def numpy_gpi(u, r, w, x0, a, c, s, offset):
     return out
 
 
-def model(r=(0.0, 0.3, 0.7), w=(1.0, 0.6, 0.4), x0=0.0, a=(0.8, 0.5), c=(-0.1, 0.4),
-          s=(0.9, 2.0), offset=0.2):
-    return pj.GeneralizedPI(pj.PIOperator(np.array(r), np.array(w), x0), np.array(a),
-                            np.array(c), np.array(s), offset)
+def model(r=(0.0, 0.3, 0.7), w=(1.0, 0.6, 0.4), x0=0.0, a=(0.8, 0.5), c=(-0.1, 0.4), s=(0.9, 2.0), offset=0.2):
+    return pj.GeneralizedPI(pj.PIOperator(np.array(r), np.array(w), x0), np.array(a), np.array(c), np.array(s), offset)
 
 
 def wave(T=300, amp=2.0):
@@ -35,8 +33,7 @@ def wave(T=300, amp=2.0):
 def test_equals_numpy_reference():
     m = model(x0=np.array([0.1, -0.2, 0.3]))
     u = wave()
-    ref = numpy_gpi(u, [0.0, 0.3, 0.7], [1.0, 0.6, 0.4], [0.1, -0.2, 0.3], [0.8, 0.5],
-                    [-0.1, 0.4], [0.9, 2.0], 0.2)
+    ref = numpy_gpi(u, [0.0, 0.3, 0.7], [1.0, 0.6, 0.4], [0.1, -0.2, 0.3], [0.8, 0.5], [-0.1, 0.4], [0.9, 2.0], 0.2)
     np.testing.assert_allclose(np.asarray(m(u)), ref, rtol=0, atol=1e-12)
 
 
@@ -52,8 +49,9 @@ def test_gradient_matches_finite_differences():
     # No ties between a play's state and its bounds (a kink): u_0 and the states apart.
     u = jnp.asarray(wave(120) + 0.05)
     m = model(x0=np.array([0.1, -0.2, 0.3]))
-    y = jnp.asarray(numpy_gpi(np.asarray(u) * 0.9, [0.0, 0.25, 0.8], [0.9, 0.5, 0.5],
-                              0.0, [0.7, 0.6], [0.0, 0.3], [1.0, 1.5], 0.1))
+    y = jnp.asarray(
+        numpy_gpi(np.asarray(u) * 0.9, [0.0, 0.25, 0.8], [0.9, 0.5, 0.5], 0.0, [0.7, 0.6], [0.0, 0.3], [1.0, 1.5], 0.1)
+    )
 
     def loss(m):
         return jnp.mean((m(u) - y) ** 2)
@@ -67,15 +65,16 @@ def test_gradient_matches_finite_differences():
         if leaf is None:
             continue
         for j in range(leaf.size):
+
             def shifted(d, i=i, j=j):
                 new = list(leaves)
                 new[i] = leaf.ravel().at[j].add(d).reshape(leaf.shape)
                 return eqx.combine(jax.tree.unflatten(treedef, new), m)
+
             if i == 0 and j == 0:
                 continue  # r_1 = 0 lies on the boundary of r >= 0
             fd = (loss(shifted(h)) - loss(shifted(-h))) / (2 * h)
-            np.testing.assert_allclose(float(g_leaves[i].ravel()[j]), float(fd), rtol=1e-5,
-                                       atol=1e-9)
+            np.testing.assert_allclose(float(g_leaves[i].ravel()[j]), float(fd), rtol=1e-5, atol=1e-9)
             checked += 1
     # thresholds (2 free), weights 3, initial states 3, log a 2, c 2, log s 2, offset 1
     assert checked == 15
@@ -151,8 +150,9 @@ def test_with_initial_states():
     u = wave()
     x = m.pi.final_states(u)
     v = wave(50) + u[-1]
-    np.testing.assert_allclose(np.asarray(m.with_initial_states(x)(v)),
-                               np.asarray(m(np.concatenate([u, v])))[len(u):], atol=1e-13)
+    np.testing.assert_allclose(
+        np.asarray(m.with_initial_states(x)(v)), np.asarray(m(np.concatenate([u, v])))[len(u) :], atol=1e-13
+    )
 
 
 def test_bad_parameters_are_refused():
@@ -177,7 +177,6 @@ def test_unreachable_target_is_refused():
 
 
 def test_not_invertible_pi_is_refused():
-    m = pj.GeneralizedPI(pj.PIOperator(np.array([0.0, 0.5]), np.array([1.0, -1.5])), [1.0],
-                         [0.0], [1.0])
+    m = pj.GeneralizedPI(pj.PIOperator(np.array([0.0, 0.5]), np.array([1.0, -1.5])), [1.0], [0.0], [1.0])
     with pytest.raises(ValueError, match="not invertible"):
         m.inverse(jnp.array([0.0, 0.1]))

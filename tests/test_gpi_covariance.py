@@ -31,8 +31,13 @@ def test_jacobian_matches_finite_differences(states):
         d[i] = h
         up = gpi_covariance.jacobian(theta + d, u, x0, 3, 2, states)[0]
         down = gpi_covariance.jacobian(theta - d, u, x0, 3, 2, states)[0]
-        np.testing.assert_allclose(J[:, i], (np.asarray(up) - np.asarray(down)) / (2 * h),
-                                   rtol=1e-5, atol=1e-6, err_msg=gpi_covariance.names(3, 2, states)[i])
+        np.testing.assert_allclose(
+            J[:, i],
+            (np.asarray(up) - np.asarray(down)) / (2 * h),
+            rtol=1e-5,
+            atol=1e-6,
+            err_msg=gpi_covariance.names(3, 2, states)[i],
+        )
 
 
 @pytest.mark.parametrize("method", _cov.METHODS)
@@ -82,8 +87,9 @@ def test_cli_fit_json_has_a_standard_error_for_every_parameter(tmp_path):
     y = np.asarray(truth(u[0])(u)) + 1e-3 * np.random.default_rng(1).standard_normal(u.size)
     data = tmp_path / "r.csv"
     data.write_text("t,u,y\n" + "\n".join(f"{i * 1e-3:.6f},{a:.17g},{b:.17g}" for i, (a, b) in enumerate(zip(u, y))))
-    assert pj.run_cli(["fit", str(data), "--model", "gpi", "--plays", "3", "--out", str(tmp_path / "o"),
-                       "--quiet"]) == 0
+    assert (
+        pj.run_cli(["fit", str(data), "--model", "gpi", "--plays", "3", "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    )
     rep = json.loads((tmp_path / "o" / "fit.json").read_text())
     want = gpi_covariance.names(3, 2, False)
     assert tuple(rep["std_errors"]) == want

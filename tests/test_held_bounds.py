@@ -12,16 +12,25 @@ import piest_jax as pj
 from piest_jax._identification import covariance as _cov
 from piest_jax._identification.time_constants import LAG_RATIO
 
-NAMES = ("weights[0]", "offset", "creep.time_constants[0]", "creep.time_constants[1]",
-         "creep.time_constants[2]", "creep.weights[0]")
+NAMES = (
+    "weights[0]",
+    "offset",
+    "creep.time_constants[0]",
+    "creep.time_constants[1]",
+    "creep.time_constants[2]",
+    "creep.weights[0]",
+)
 
 
-@pytest.mark.parametrize("gaps,held", [
-    ([1.0, 1.0, 1.0], []),
-    ([0.0, 1.0, 1.0], [0]),
-    ([1.0, 1e-4, 0.0], [1, 2]),
-    ([0.0, 0.0, 1.0], [0, 1]),
-])
+@pytest.mark.parametrize(
+    "gaps,held",
+    [
+        ([1.0, 1.0, 1.0], []),
+        ([0.0, 1.0, 1.0], [0]),
+        ([1.0, 1e-4, 0.0], [1, 2]),
+        ([0.0, 0.0, 1.0], [0, 1]),
+    ],
+)
 def test_on_bounds_maps_the_free_parameters(gaps, held):
     T, is_held = _cov.on_bounds(NAMES, np.asarray(gaps))
     where = {k: NAMES.index(f"creep.time_constants[{k}]") for k in range(3)}
@@ -43,8 +52,11 @@ def test_a_lag_pushed_onto_the_floor_is_held_and_the_fit_determined():
     # weight and the plays' are then determined, and the time constant is reported as held.
     u = signal(1200)
     floor = pj.shortest_time_constant(u, DT)
-    y = (reference_pi(u, R, W, u[0]) + 0.8 * reference_lags(u, np.array([floor / 5]), DT, u[0])[:, 0]
-         + 0.002 * np.random.default_rng(0).standard_normal(u.size))
+    y = (
+        reference_pi(u, R, W, u[0])
+        + 0.8 * reference_lags(u, np.array([floor / 5]), DT, u[0])[:, 0]
+        + 0.002 * np.random.default_rng(0).standard_normal(u.size)
+    )
     f = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, key=jax.random.key(0))
     assert f.creep.time_constants[0] == pytest.approx(floor, rel=2e-3)
     assert f.held_names == ("creep.time_constants[0]",)

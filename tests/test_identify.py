@@ -30,8 +30,23 @@ def test_cli_fit_json_is_identify_to_json(tmp_path, capsys):
     rec = _record(tmp_path / "d.csv", 300)
     val = _record(tmp_path / "v.csv", 200, phase=1.0)
     out = tmp_path / "out"
-    argv = ["fit", rec.source, "--plays", "3", "--validate", val.source, "--seed", "3",
-            "--starts", "2", "--fit-from", "0.1", "--out", str(out), "--quiet"]
+    argv = [
+        "fit",
+        rec.source,
+        "--plays",
+        "3",
+        "--validate",
+        val.source,
+        "--seed",
+        "3",
+        "--starts",
+        "2",
+        "--fit-from",
+        "0.1",
+        "--out",
+        str(out),
+        "--quiet",
+    ]
     assert pj.run_cli(argv) == 0
     capsys.readouterr()
     written = json.loads((out / "fit.json").read_text())
@@ -43,8 +58,7 @@ def test_cli_fit_json_is_identify_to_json(tmp_path, capsys):
     raw = pj.compare(result.fit.model().with_initial_states(val.u[0]), val, estimate_initial=False)
     assert written["validation_rmse"] == pytest.approx(float(raw.rmse), rel=1e-12)
     # The validation record never takes part: without it the fit and its report are the same.
-    alone = _round_trip(pj.identify(rec, plays=3, key=jax.random.key(3), starts=2,
-                                    fit_from=0.1).to_json())
+    alone = _round_trip(pj.identify(rec, plays=3, key=jax.random.key(3), starts=2, fit_from=0.1).to_json())
     assert alone == {k: v for k, v in written.items() if not k.startswith("valid")}
 
 
@@ -72,8 +86,10 @@ def test_validation_reports_the_band_coverage(tmp_path):
         assert report[key] == np.mean((val.y >= lower) & (val.y <= upper))
         assert 0.9 <= report[key] <= 0.99, (key, report[key])
     fig = pj.fit_figure(val, v.raw.prediction, title="validation", band=v.raw_band.interval())
-    assert any(f"{100 * report['validation_band_coverage']:.1f} % inside" in t.get_text()
-               for t in fig.axes[1].get_legend().get_texts())
+    assert any(
+        f"{100 * report['validation_band_coverage']:.1f} % inside" in t.get_text()
+        for t in fig.axes[1].get_legend().get_texts()
+    )
 
 
 def test_the_selection_is_typed_and_reported(tmp_path, capsys):
@@ -82,9 +98,13 @@ def test_the_selection_is_typed_and_reported(tmp_path, capsys):
     assert isinstance(result.selection, pj.ModelSize) and result.validation is None
     assert result.fit is result.selection.fit and result.fit.n_plays == result.selection.n_plays
     rep = _round_trip(result.to_json())
-    assert rep["selection"] == {"criterion": "holdout", "candidates": [2, 3],
-                                "scores": list(result.selection.scores), "rejected": [],
-                                "selection_samples": 300}
+    assert rep["selection"] == {
+        "criterion": "holdout",
+        "candidates": [2, 3],
+        "scores": list(result.selection.scores),
+        "rejected": [],
+        "selection_samples": 300,
+    }
     assert rep["n_plays"] == result.fit.n_plays and "fit_from" not in rep
     # A saved report is a model file.
     path = pj.write_json(tmp_path / "fit.json", result.to_json())
@@ -95,8 +115,10 @@ def test_the_selection_is_typed_and_reported(tmp_path, capsys):
 @pytest.mark.parametrize(
     "options, message",
     [
-        (dict(initial_states=0.0, fit_initial_states=True),
-         "give either `initial_states` or `fit_initial_states`, not both"),
+        (
+            dict(initial_states=0.0, fit_initial_states=True),
+            "give either `initial_states` or `fit_initial_states`, not both",
+        ),
         (dict(plays=3, candidates=[2, 3]), "`candidates` is used only by `plays` auto; `plays` 3 fixes"),
         (dict(plays=3, criterion="bic"), "`criterion` is used only by `plays` auto"),
         (dict(model="pi", lags=[1]), r"`lags` needs `model` pi\+creep or auto"),
@@ -134,8 +156,9 @@ def test_the_command_names_its_options_in_identify_messages(tmp_path, capsys):
     rec = _record(tmp_path / "d.csv", 40)
     out = tmp_path / "o"
     assert pj.run_cli(["fit", rec.source, "--plays", "3", "--candidates", "2,3", "--out", str(out)]) == 2
-    assert capsys.readouterr().err == ("piest fit: error: --candidates is used only by --plays auto; "
-                                       "--plays 3 fixes the number of plays\n")
+    assert capsys.readouterr().err == (
+        "piest fit: error: --candidates is used only by --plays auto; --plays 3 fixes the number of plays\n"
+    )
     assert pj.run_cli(["fit", rec.source, "--time-constants", "1e-4", "--out", str(out)]) == 2
     assert capsys.readouterr().err.startswith("piest fit: error: --time-constants: 0.0001 is shorter")
     assert not out.exists()

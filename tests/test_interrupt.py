@@ -19,17 +19,22 @@ import pytest
 
 # Where each command's computation starts (module, attribute), and a job that runs for a while.
 _JOBS = {
-    "simulate": ("piest_jax._cli.simulate", "_io.write_csv",
-                 ["simulate", "--plays", "400", "--r-max", "5", "--duration", "100"]),
+    "simulate": (
+        "piest_jax._cli.simulate",
+        "_io.write_csv",
+        ["simulate", "--plays", "400", "--r-max", "5", "--duration", "100"],
+    ),
     "fit": ("piest_jax._identification.identify", "select_model", ["fit", "{rec}", "--starts", "8"]),
     "diagnose": ("piest_jax._diagnosis.diagnose", "diagnose", ["diagnose", "{rec}"]),
     "compensate": ("piest_jax._cli.compensate", "feedforward", ["compensate", "{model}", "{rec}"]),
-    "montecarlo": ("piest_jax._cli.montecarlo", "pe_map",
-                   ["montecarlo", "--inputs", "4000", "--samples", "20000"]),
+    "montecarlo": ("piest_jax._cli.montecarlo", "pe_map", ["montecarlo", "--inputs", "4000", "--samples", "20000"]),
     "reproduce": ("piest_jax._cli.reproduce", "reproduce", ["reproduce", "all"]),
     "estimate": ("piest_jax._estimation.online", "estimate_record", ["estimate", "{rec}", "--plays", "400"]),
-    "excite": ("piest_jax._cli.excite", "design_input",
-               ["excite", "--thresholds", "0,0.5,1,1.5,2", "--amplitude", "3", "--samples", "3000000"]),
+    "excite": (
+        "piest_jax._cli.excite",
+        "design_input",
+        ["excite", "--thresholds", "0,0.5,1,1.5,2", "--amplitude", "3", "--samples", "3000000"],
+    ),
 }
 
 
@@ -37,6 +42,7 @@ def test_every_command_has_a_job():
     from piest_jax._cli import COMMANDS
 
     assert {m.NAME for m in COMMANDS} == set(_JOBS)
+
 
 _WRAPPER = textwrap.dedent(
     """
@@ -72,8 +78,11 @@ def inputs(tmp_path_factory):
     np.savetxt(d / "rec.csv", np.c_[t, u, y], delimiter=",", header="t,u,y", comments="")
     n = 20_000
     r = np.linspace(0, 2, n, endpoint=False)
-    (d / "model.json").write_text(json.dumps({"thresholds": r.tolist(), "weights": [1.0] + [1e-4] * (n - 1),
-                                              "offset": 0.0, "initial_states": [0.0] * n}))
+    (d / "model.json").write_text(
+        json.dumps(
+            {"thresholds": r.tolist(), "weights": [1.0] + [1e-4] * (n - 1), "offset": 0.0, "initial_states": [0.0] * n}
+        )
+    )
     (d / "wrapper.py").write_text(_WRAPPER)
     return d
 
@@ -85,7 +94,9 @@ def _start(inputs, command, out, extra=()):
         [sys.executable, str(inputs / "wrapper.py"), module, attr, *argv, "--out", str(out), "--quiet", *extra],
         # No `preexec_fn`: it runs the parent's fork hooks, and JAX's warns (an error here) once
         # JAX runs threads in this test process.
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
 
 

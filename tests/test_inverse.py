@@ -107,9 +107,7 @@ def test_errors():
     with pytest.raises(ValueError, match=r"at i = 1 they are 0"):
         pj.inverse(pj.PIOperator(jnp.array([0.0, 1.0]), jnp.array([0.0, 1.0])))
     with pytest.raises(ValueError, match=r"cannot be reached by any input history.*\|x_3 - x_2\|"):
-        pj.inverse(
-            pj.PIOperator(jnp.array([0.0, 1.0, 2.0]), jnp.ones(3), jnp.array([0.0, 0.5, 2.0]))
-        )
+        pj.inverse(pj.PIOperator(jnp.array([0.0, 1.0, 2.0]), jnp.ones(3), jnp.array([0.0, 0.5, 2.0])))
 
 
 @pytest.mark.parametrize(

@@ -93,9 +93,7 @@ def _assert_grads_close(got, want, dtype, terms):
     for k, (a, b) in enumerate(zip(got, want)):
         a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
         scale = max(1.0, float(np.max(np.abs(b))))
-        np.testing.assert_allclose(
-            a, b, rtol=0, atol=_sum_tolerance(dtype, terms, scale), err_msg=f"argument {k}"
-        )
+        np.testing.assert_allclose(a, b, rtol=0, atol=_sum_tolerance(dtype, terms, scale), err_msg=f"argument {k}")
 
 
 # Forward outputs ------------------------------------------------------------------------------

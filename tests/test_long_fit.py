@@ -34,8 +34,7 @@ def problem(T, n_lags=0, fit_states=False, pad=False):
     log_tau0 = jnp.log(jnp.array([30.0, 300.0][:n_lags])) if n_lags else None
     base = jnp.log(jnp.array([10.0, 10.0 * 10**0.5][:n_lags])) if n_lags else None
     r0 = jnp.array([0.0, 0.15, 0.4, 0.7])
-    p = _fit._initial_params(r0, un, yn, x0, mask, True, fit_states, None, active, z0, log_tau0,
-                             None, base)
+    p = _fit._initial_params(r0, un, yn, x0, mask, True, fit_states, None, active, z0, log_tau0, None, base)
     # Move off the least-squares weights so that the residuals are not orthogonal to anything.
     p = jax.tree.map(lambda a: a + 0.05 * jnp.cos(jnp.arange(jnp.size(a)).reshape(a.shape)), p)
     if active is not None:
@@ -46,9 +45,7 @@ def problem(T, n_lags=0, fit_states=False, pad=False):
     return p, args, st
 
 
-@pytest.mark.parametrize(
-    "n_lags, fit_states, pad", [(0, False, False), (2, True, False), (0, True, True)]
-)
+@pytest.mark.parametrize("n_lags, fit_states, pad", [(0, False, False), (2, True, False), (0, True, True)])
 def test_normal_equations_match_full_jacobian(n_lags, fit_states, pad):
     # T = 700 is no multiple of the chunk (64): the last chunk is part padding.
     p, args, st = problem(700, n_lags, fit_states, pad)
@@ -68,8 +65,8 @@ def test_normal_equations_match_full_jacobian(n_lags, fit_states, pad):
     # The Jacobian itself against central finite differences, column by column.
     h = 1e-6
     fd = np.stack(
-        [(residuals(theta + h * e) - residuals(theta - h * e)) / (2 * h)
-         for e in np.eye(theta.shape[0])], axis=1,
+        [(residuals(theta + h * e) - residuals(theta - h * e)) / (2 * h) for e in np.eye(theta.shape[0])],
+        axis=1,
     )
     np.testing.assert_allclose(JtJ, fd.T @ fd, rtol=1e-4, atol=1e-8)
 
@@ -102,8 +99,13 @@ def chunked_fit(monkeypatch):
 
 @pytest.mark.parametrize(
     "options",
-    [{}, {"fit_initial_states": True}, {"n_lags": 2, "dt": 1e-3}, {"pad_plays": 6},
-     {"max_threshold": 0.9, "positive_weights": False}],
+    [
+        {},
+        {"fit_initial_states": True},
+        {"n_lags": 2, "dt": 1e-3},
+        {"pad_plays": 6},
+        {"max_threshold": 0.9, "positive_weights": False},
+    ],
     ids=["plain", "states", "creep", "padded", "bounded-signed"],
 )
 def test_chunked_fit_equals_in_memory_fit(chunked_fit, options):

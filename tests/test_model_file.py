@@ -70,20 +70,24 @@ def test_cli_fit_json_loads_and_reproduces_its_rmse(tmp_path, capsys):
     # `piest compensate` reads the same file: its feedforward equals the library's.
     t = rec.t[:200]
     desired = 0.5 * np.sin(2 * np.pi * 0.5 * t)
-    np.savetxt(tmp_path / "d.csv", np.column_stack([t, desired]), delimiter=",",
-               header="t,desired", comments="")
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, desired]), delimiter=",", header="t,desired", comments="")
     ff = tmp_path / "ff"
-    assert pj.run_cli(["compensate", str(out / "fit.json"), str(tmp_path / "d.csv"),
-                       "--out", str(ff), "--quiet"]) == 0
+    assert pj.run_cli(["compensate", str(out / "fit.json"), str(tmp_path / "d.csv"), "--out", str(ff), "--quiet"]) == 0
     cols = np.loadtxt(ff / "compensate.csv", delimiter=",", skiprows=1)
-    np.testing.assert_allclose(cols[:, 2], np.asarray(pj.feedforward(model, desired)), rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(cols[:, 2], np.asarray(pj.feedforward(model, desired)), rtol=0, atol=1e-12)
 
 
 def test_files_without_a_schema_are_pi_models(tmp_path):
     # fit.json as `piest fit` wrote it before model files had a schema.
-    old = {"data": "d.csv", "n_plays": 3, "thresholds": R, "weights": W, "offset": C,
-           "initial_states": X0, "rmse": 0.01}
+    old = {
+        "data": "d.csv",
+        "n_plays": 3,
+        "thresholds": R,
+        "weights": W,
+        "offset": C,
+        "initial_states": X0,
+        "rmse": 0.01,
+    }
     (tmp_path / "old.json").write_text(json.dumps(old))
     m = pj.load_model(tmp_path / "old.json")
     np.testing.assert_array_equal(m.thresholds, R)
@@ -98,14 +102,18 @@ def test_files_without_a_schema_are_pi_models(tmp_path):
         ("[1]", r"expected a JSON object as written by `piest fit`"),
         ({"schema": SCHEMA + 1, "structure": "pi"}, rf"model file schema {SCHEMA + 1} is newer"),
         ({"schema": "1", "thresholds": R, "weights": W}, r"`schema` must be a non-negative integer"),
-        ({"schema": 1, "structure": "neural", "thresholds": R},
-         r"unknown model structure 'neural'; this piest_jax reads pi"),
+        (
+            {"schema": 1, "structure": "neural", "thresholds": R},
+            r"unknown model structure 'neural'; this piest_jax reads pi",
+        ),
         ({"schema": 1, "structure": "pi", "weights": W}, r"missing thresholds"),
         ({"thresholds": R, "weights": W[:2]}, r"must be equal vectors"),
         ({"thresholds": R, "weights": [1.0, None, 2.0]}, r"must be finite"),
         ({"thresholds": [0.0, 0.5, 0.5], "weights": W}, r"`thresholds` must be strictly increasing"),
-        ({"thresholds": R, "weights": W, "creep": {"time_constants": [1.0], "weights": [0.1], "dt": 0.01}},
-         r"it has a `creep` but no `\"structure\": \"pi\+creep\"`"),
+        (
+            {"thresholds": R, "weights": W, "creep": {"time_constants": [1.0], "weights": [0.1], "dt": 0.01}},
+            r"it has a `creep` but no `\"structure\": \"pi\+creep\"`",
+        ),
     ],
 )
 def test_bad_model_files_are_refused_naming_the_file(tmp_path, content, message):
@@ -149,8 +157,7 @@ def test_gpi_fit_round_trip_reproduces_its_rmse(tmp_path):
 @pytest.mark.parametrize("initial_states", [None, 0.0])
 def test_preisach_fit_round_trip_reproduces_its_rmse(tmp_path, initial_states):
     u, y = _saturating()
-    fit = pj.fit_preisach(u, y, n_widths=4, n_centres=6, smoothness=1e-3,
-                          initial_states=initial_states)
+    fit = pj.fit_preisach(u, y, n_widths=4, n_centres=6, smoothness=1e-3, initial_states=initial_states)
     path = pj.save_model(tmp_path / "p.json", fit)
     keys = json.loads(path.read_text())
     assert keys["structure"] == "preisach" and keys["starts_at_rest"] == (initial_states is None)
@@ -164,19 +171,42 @@ def test_preisach_fit_round_trip_reproduces_its_rmse(tmp_path, initial_states):
 @pytest.mark.parametrize(
     "content, message",
     [
-        ({"schema": 1, "structure": "gpi", "thresholds": R, "weights": W},
-         r"`output_function` must hold amplitudes, centres and scales"),
-        ({"schema": 1, "structure": "gpi", "thresholds": R, "weights": W,
-          "output_function": {"amplitudes": [1.0], "centres": [0.0], "scales": [-1.0]}},
-         r"unusable output_function \(`scales` must be positive"),
-        ({"schema": 1, "structure": "gpi", "thresholds": R, "weights": W,
-          "output_function": {"form": "atan", "amplitudes": [1], "centres": [0], "scales": [1]}},
-         r"unknown output function form 'atan'"),
-        ({"schema": 1, "structure": "preisach", "half_widths": [0.0], "centres": [0.0, 1.0]},
-         r"missing blur, density"),
-        ({"schema": 1, "structure": "preisach", "half_widths": [0.0], "centres": [0.0, 1.0],
-          "blur": [0.5, 0.5], "density": [[1.0, 2.0, 3.0]]},
-         r"unusable Preisach model \(`density` must have shape"),
+        (
+            {"schema": 1, "structure": "gpi", "thresholds": R, "weights": W},
+            r"`output_function` must hold amplitudes, centres and scales",
+        ),
+        (
+            {
+                "schema": 1,
+                "structure": "gpi",
+                "thresholds": R,
+                "weights": W,
+                "output_function": {"amplitudes": [1.0], "centres": [0.0], "scales": [-1.0]},
+            },
+            r"unusable output_function \(`scales` must be positive",
+        ),
+        (
+            {
+                "schema": 1,
+                "structure": "gpi",
+                "thresholds": R,
+                "weights": W,
+                "output_function": {"form": "atan", "amplitudes": [1], "centres": [0], "scales": [1]},
+            },
+            r"unknown output function form 'atan'",
+        ),
+        ({"schema": 1, "structure": "preisach", "half_widths": [0.0], "centres": [0.0, 1.0]}, r"missing blur, density"),
+        (
+            {
+                "schema": 1,
+                "structure": "preisach",
+                "half_widths": [0.0],
+                "centres": [0.0, 1.0],
+                "blur": [0.5, 0.5],
+                "density": [[1.0, 2.0, 3.0]],
+            },
+            r"unusable Preisach model \(`density` must have shape",
+        ),
     ],
 )
 def test_bad_gpi_and_preisach_files_are_refused(tmp_path, content, message):

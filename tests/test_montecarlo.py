@@ -55,10 +55,7 @@ def _reference(u, r, x0, w, s):
         zero = np.any(~moving & (np.abs(Hw[0]) <= 1e-12))
         twin = [[np.ptp(np.abs(Hw[:, i] - Hw[:, j])) <= 1e-12 for j in range(n)] for i in range(n)]
         triple = any(
-            twin[i][j] and twin[i][k] and twin[j][k]
-            for i in range(n)
-            for j in range(i + 1, n)
-            for k in range(j + 1, n)
+            twin[i][j] and twin[i][k] and twin[j][k] for i in range(n) for j in range(i + 1, n) for k in range(j + 1, n)
         )
         holds.append(n <= min(len(reps), steps) + 1 and not zero and not triple)
     est = pj.ContinuousRLS(s.P0, s.dt)
@@ -251,9 +248,7 @@ def test_unresolved_thresholds():
 def test_sharper_condition_public():
     u = triangle(jnp.asarray(T_CASE), 4.0, 0.5)
     H = pj.play(u, jnp.array([0.25, 0.5, 1.0]))
-    holds = jax.jit(pj.sharper_condition, static_argnums=2, static_argnames="stride")(
-        H, u, 300, stride=10
-    )
+    holds = jax.jit(pj.sharper_condition, static_argnums=2, static_argnames="stride")(H, u, 300, stride=10)
     assert holds.shape == (171,) and holds.any() and not holds.all()
     with pytest.raises(ValueError, match="must be between 1 and the signal length"):
         pj.sharper_condition(H, u, 3000)
@@ -300,8 +295,7 @@ def _cpu_map(pemap, settings):
     """
     if jax.default_backend() == "cpu":
         return pemap
-    return pj.pe_map(jax.random.key(SEED), N_DRAWS, settings, chunk=CHUNK, devices=jax.devices("cpu")[:1],
-                     quiet=True)
+    return pj.pe_map(jax.random.key(SEED), N_DRAWS, settings, chunk=CHUNK, devices=jax.devices("cpu")[:1], quiet=True)
 
 
 def test_sharded_equals_single_device(pemap, settings, tmp_path):
@@ -347,9 +341,7 @@ def test_many_windows_on_two_devices_finish(tmp_path):
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     env["JAX_PLATFORMS"] = "cpu"
     try:
-        proc = subprocess.run(
-            [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300
-        )
+        proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     except subprocess.TimeoutExpired:
         pytest.fail("the two-device map did not finish in 300 s (eigensolver deadlock?)")
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -369,8 +361,10 @@ def test_batch_as_one_vmap_equals_the_loop(pemap, settings):
     # the layout an accelerator gets: the same statistics as the CPU's draw-by-draw loop
     keys = pj.draw_keys(jax.random.key(SEED), 0, 14)
     out = jax.jit(lambda k: M._local_batch(k, settings, loop=False))(keys)
-    _assert_same_map({k: np.asarray(v) for k, v in out.items()} | {"family": pemap["family"][:14]},
-                     {k: v[:14] for k, v in pemap.items() if k != "seconds"})
+    _assert_same_map(
+        {k: np.asarray(v) for k, v in out.items()} | {"family": pemap["family"][:14]},
+        {k: v[:14] for k, v in pemap.items() if k != "seconds"},
+    )
 
 
 def test_settings_errors():

@@ -44,8 +44,9 @@ def test_chunks_equal_one_scan_over_the_record(chunk):
     # The kept trajectory is the reference's at the kept instants.
     k = np.round(np.asarray(res.t) / DT).astype(int)
     assert k[-1] == len(u) - 1
-    assert np.allclose(res.weights_trajectory, np.asarray(whole.weights)[k, :4] * b / a, rtol=2e-4,
-                       atol=2e-4 * np.max(np.abs(w_ref)))
+    assert np.allclose(
+        res.weights_trajectory, np.asarray(whole.weights)[k, :4] * b / a, rtol=2e-4, atol=2e-4 * np.max(np.abs(w_ref))
+    )
     # PE levels and the certificate, window by window, as the whole-record functions give them.
     levels = pj.windowed_pe_levels(jnp.asarray(H), 50, stride=50)
     assert np.allclose(res.pe_levels, levels, rtol=1e-3, atol=1e-7)
@@ -94,8 +95,13 @@ def test_settled_start():
 
 @pytest.mark.parametrize(
     "kwargs, match",
-    [(dict(thresholds=[[0.0, 1.0]]), "vector"), (dict(window=1), "window"), (dict(start=899), "start"),
-     (dict(initial_states=[0.0, 1.0]), "initial_states"), (dict(dt=0.0), "dt")],
+    [
+        (dict(thresholds=[[0.0, 1.0]]), "vector"),
+        (dict(window=1), "window"),
+        (dict(start=899), "start"),
+        (dict(initial_states=[0.0, 1.0]), "initial_states"),
+        (dict(dt=0.0), "dt"),
+    ],
 )
 def test_bad_arguments_are_named(kwargs, match):
     u, y = _record()
@@ -137,11 +143,15 @@ def test_cli_writes_the_report(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "extra, match",
-    [(["--thresholds", "1,0.5"], "start at 0 and increase"),
-     (["--estimator", "forgetting", "--forgetting", "2"], "(0, 1]"),
-     (["--forgetting", "0.5"], "--forgetting is a setting of --estimator forgetting, not of --estimator rls"),
-     (["--start", "-1"], "time >= 0"), (["--start", "99"], "fewer than 2 samples"),
-     (["--from-fit", "nope.json"], "cannot read"), (["--window", "1000"], "--window")],
+    [
+        (["--thresholds", "1,0.5"], "start at 0 and increase"),
+        (["--estimator", "forgetting", "--forgetting", "2"], "(0, 1]"),
+        (["--forgetting", "0.5"], "--forgetting is a setting of --estimator forgetting, not of --estimator rls"),
+        (["--start", "-1"], "time >= 0"),
+        (["--start", "99"], "fewer than 2 samples"),
+        (["--from-fit", "nope.json"], "cannot read"),
+        (["--window", "1000"], "--window"),
+    ],
 )
 def test_cli_bad_options_are_one_line(tmp_path, capsys, extra, match):
     p = _csv(tmp_path, n=300)

@@ -11,8 +11,7 @@ import piest_jax as pj
 
 
 def _python(code: str, *args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300)
 
 
 def test_import_loads_neither_jax_nor_the_diagnosis_stack():
@@ -58,10 +57,24 @@ def test_version_comes_from_the_package_metadata():
 
 
 def test_module_runs_the_command_line(tmp_path):
-    args = ["simulate", "--input", "triangle", "--thresholds", "0,1", "--weights", "1,0.5",
-            "--duration", "0.2", "--quiet"]
-    a = subprocess.run([sys.executable, "-m", "piest_jax", *args, "--out", str(tmp_path / "a")],
-                       capture_output=True, text=True, timeout=300)
+    args = [
+        "simulate",
+        "--input",
+        "triangle",
+        "--thresholds",
+        "0,1",
+        "--weights",
+        "1,0.5",
+        "--duration",
+        "0.2",
+        "--quiet",
+    ]
+    a = subprocess.run(
+        [sys.executable, "-m", "piest_jax", *args, "--out", str(tmp_path / "a")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert a.returncode == 0, a.stderr
     assert pj.run_cli([*args, "--out", str(tmp_path / "b")]) == 0
     assert (tmp_path / "a" / "simulate.csv").read_bytes() == (tmp_path / "b" / "simulate.csv").read_bytes()
@@ -102,7 +115,10 @@ def _fake_report():
     p0 = [1e4, 1e6, 1e8]
     return {
         "_arrays": {"t": t, "weights": w, "bound": np.exp(-t)},
-        "weights_true": [1.0, 3.0, 5.0], "figure": "fig5", "input": "u", "P0": 1e8,
+        "weights_true": [1.0, 3.0, 5.0],
+        "figure": "fig5",
+        "input": "u",
+        "P0": 1e8,
         "sweep": {"P0": p0, "time_to_1pct": {"paper": [None, 0.1, 0.03], "standard": [0.2, 0.05, 0.03]}},
         "time_input_exceeds_r_max": 0.02,
     }
@@ -137,10 +153,18 @@ def test_readme_notebooks_and_experiments_use_only_the_public_api():
     from pathlib import Path
 
     root = Path(__file__).resolve().parent.parent
-    files = [root / "README.md", *(root / "notebooks").rglob("*.py"), *(root / "notebooks").glob("*.ipynb"),
-             *(root / "experiments").rglob("*.py")]
-    private = [f"{p.relative_to(root)}:{i}" for p in files
-               for i, line in enumerate(p.read_text().splitlines(), 1) if re.search(r"piest_jax\._", line)]
+    files = [
+        root / "README.md",
+        *(root / "notebooks").rglob("*.py"),
+        *(root / "notebooks").glob("*.ipynb"),
+        *(root / "experiments").rglob("*.py"),
+    ]
+    private = [
+        f"{p.relative_to(root)}:{i}"
+        for p in files
+        for i, line in enumerate(p.read_text().splitlines(), 1)
+        if re.search(r"piest_jax\._", line)
+    ]
     assert len(files) > 15 and private == []
 
 
@@ -172,26 +196,45 @@ def _figure_calls():
     rec = pj.Record(t, u, y)
     mask = (t >= 0.2).astype(float)
     val = pj.DiagnosisValidation(
-        rec, 0.2, 0.02, 0.1, 0.01, 50.0, 95.0, 60.0, 96.0, {}, 0.01, 0.2, 0.02, ["delay"], 0.9 * y, y)
-    diagnosis = pj.Diagnosis(rec, ["delay"], 0.1, 0.01, 0.01, {}, {}, [], [], 0.1, 0.01, 1, [], 0.9 * y, y,
-                             validation=val)
+        rec, 0.2, 0.02, 0.1, 0.01, 50.0, 95.0, 60.0, 96.0, {}, 0.01, 0.2, 0.02, ["delay"], 0.9 * y, y
+    )
+    diagnosis = pj.Diagnosis(
+        rec, ["delay"], 0.1, 0.01, 0.01, {}, {}, [], [], 0.1, 0.01, 1, [], 0.9 * y, y, validation=val
+    )
     k = np.arange(4.0)
     online = pj.OnlineEstimate(
-        thresholds=k[:2], initial_states=k[:2], weights=k[:2], offset=np.float64(0.0), t=k,
-        weights_trajectory=np.ones((4, 2)), offset_trajectory=k, error_rms=np.exp(-k), final_rmse=0.1,
-        window_t=k[:2], pe_levels=np.array([1e-3, 1e-2]), exciting=np.array([True, True]),
-        bound_t=k[:2], gram_bound=np.array([1.0, 0.1]),
+        thresholds=k[:2],
+        initial_states=k[:2],
+        weights=k[:2],
+        offset=np.float64(0.0),
+        t=k,
+        weights_trajectory=np.ones((4, 2)),
+        offset_trajectory=k,
+        error_rms=np.exp(-k),
+        final_rmse=0.1,
+        window_t=k[:2],
+        pe_levels=np.array([1e-3, 1e-2]),
+        exciting=np.array([True, True]),
+        bound_t=k[:2],
+        gram_bound=np.array([1.0, 0.1]),
     )
     settings = pj.make_settings(n_samples=100, families=["sine", "triangle"], dtype="float64")
     rng = np.random.default_rng(0)
-    draws = {"rho": rng.uniform(0.1, 3, 20), "c1_normalised": rng.uniform(1e-12, 1e-3, 20),
-             "pe": rng.uniform(size=20) > 0.4,
-             "family": np.repeat(list(settings.families), 10), "exact": rng.uniform(size=20) > 0.3,
-             "sharper": rng.uniform(size=20) > 0.5, "weight_error": rng.uniform(1e-9, 1, 20),
-             "margin": rng.uniform(1e-9, 1e-4, 20), "c1": rng.uniform(1e-9, 1e-3, 20),
-             "worst_error": rng.uniform(1e-6, 1, 20), "guaranteed_error": rng.uniform(1e-4, 1, 20),
-             "samples_to_1pct": rng.integers(-1, 100, 20),
-             "guaranteed_samples_to_1pct": rng.integers(-1, 100, 20)}
+    draws = {
+        "rho": rng.uniform(0.1, 3, 20),
+        "c1_normalised": rng.uniform(1e-12, 1e-3, 20),
+        "pe": rng.uniform(size=20) > 0.4,
+        "family": np.repeat(list(settings.families), 10),
+        "exact": rng.uniform(size=20) > 0.3,
+        "sharper": rng.uniform(size=20) > 0.5,
+        "weight_error": rng.uniform(1e-9, 1, 20),
+        "margin": rng.uniform(1e-9, 1e-4, 20),
+        "c1": rng.uniform(1e-9, 1e-3, 20),
+        "worst_error": rng.uniform(1e-6, 1, 20),
+        "guaranteed_error": rng.uniform(1e-4, 1, 20),
+        "samples_to_1pct": rng.integers(-1, 100, 20),
+        "guaranteed_samples_to_1pct": rng.integers(-1, 100, 20),
+    }
     return {
         "fit_figure": lambda: pj.fit_figure(rec, 0.9 * y, title="fit", mask=mask),
         "compensation_figure": lambda: pj.compensation_figure(t, y, u),
@@ -223,8 +266,11 @@ def test_the_commands_draw_without_pyplot():
     from pathlib import Path
 
     root = Path(pj.__file__).parent
-    offending = [str(p.relative_to(root)) for p in root.rglob("*.py")
-                 if "matplotlib.use(" in p.read_text() or "import matplotlib.pyplot" in p.read_text()]
+    offending = [
+        str(p.relative_to(root))
+        for p in root.rglob("*.py")
+        if "matplotlib.use(" in p.read_text() or "import matplotlib.pyplot" in p.read_text()
+    ]
     assert offending == ["_cli/output.py"]  # save_figure closes a pyplot figure it is given
 
 

@@ -71,9 +71,7 @@ def test_stop_matches_direct_stop_recursion(rng, method):
 
 @jax.jit
 def _both_methods(u, r, x0):
-    return tuple(
-        (pj.play(u, r, x0, method=m), pj.stop(u, r, 0.0, method=m)) for m in ("scan", "associative")
-    )
+    return tuple((pj.play(u, r, x0, method=m), pj.stop(u, r, 0.0, method=m)) for m in ("scan", "associative"))
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
@@ -131,9 +129,7 @@ def test_rate_independence(u, r, x0, k, fractions):
     dense = np.concatenate([u[: k + 1], extra, u[k + 1 :]])
     old = np.r_[np.arange(k + 1), np.arange(k + 1, T) + len(extra)]
     for method in ("scan", "associative"):
-        np.testing.assert_array_equal(
-            np.asarray(_play(dense, r, x0, method))[old], np.asarray(_play(u, r, x0, method))
-        )
+        np.testing.assert_array_equal(np.asarray(_play(dense, r, x0, method))[old], np.asarray(_play(u, r, x0, method)))
 
 
 def test_shape_and_value_errors():
@@ -190,5 +186,6 @@ def test_auto_takes_the_associative_scan_on_an_accelerator(monkeypatch, rng):
     monkeypatch.setattr(_creep, "on_accelerator", lambda: True)
     a, z0 = jnp.asarray([0.5, 0.9]), jnp.zeros(2)
     assert " scan[" not in str(jax.make_jaxpr(lambda u: _creep.lag_states(u, a, z0, method="auto"))(u))
-    np.testing.assert_allclose(_creep.lag_states(u, a, z0, method="auto"), _creep.lag_states(u, a, z0, method="scan"),
-                               rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(
+        _creep.lag_states(u, a, z0, method="auto"), _creep.lag_states(u, a, z0, method="scan"), rtol=1e-12, atol=1e-14
+    )

@@ -30,8 +30,7 @@ def reversal_input(rng, n_points, per_leg=12, lo=-1.0, hi=1.0):
     # Full excursions now and then, so every part of the record exercises the whole triangle.
     pts[::10] = lo
     pts[1::10] = hi
-    return np.concatenate([np.linspace(a, b, per_leg, endpoint=False)
-                           for a, b in zip(pts[:-1], pts[1:])])
+    return np.concatenate([np.linspace(a, b, per_leg, endpoint=False) for a, b in zip(pts[:-1], pts[1:])])
 
 
 def grid(K, M):
@@ -76,8 +75,7 @@ def test_basis_matches_the_call_and_vmap_matches_a_loop(rng):
     model = pj.Preisach(r, c, rng.normal(size=(K, M)), offset=-0.3, initial_states=0.1)
     us = np.stack([reversal_input(rng, 10) for _ in range(3)])
     B = np.asarray(model.basis(us[0]))
-    np.testing.assert_allclose(B @ np.asarray(model.density).ravel() - 0.3,
-                               np.asarray(model(us[0])), atol=1e-12)
+    np.testing.assert_allclose(B @ np.asarray(model.density).ravel() - 0.3, np.asarray(model(us[0])), atol=1e-12)
     batched = np.asarray(jax.vmap(model)(jnp.asarray(us)))
     for i in range(3):
         np.testing.assert_allclose(batched[i], np.asarray(model(us[i])), atol=1e-12)
@@ -125,7 +123,7 @@ def test_wiping_out_and_output_bound(seed, early, early2, tail):
     a = np.array([0.0, *early, 0.9, -0.9, *tail])
     b = np.array([0.0, *early2, 0.9, -0.9, *tail])
     ya, yb = np.asarray(model(a)), np.asarray(model(b))
-    np.testing.assert_allclose(ya[-len(tail) - 1:], yb[-len(tail) - 1:], atol=1e-12)
+    np.testing.assert_allclose(ya[-len(tail) - 1 :], yb[-len(tail) - 1 :], atol=1e-12)
     bound = np.abs(mu).sum() + 0.4
     assert np.all(np.abs(ya) <= bound + 1e-12)
 
@@ -151,9 +149,17 @@ def test_chunked_normal_equations_equal_the_dense_ones(rng):
     w = (rng.uniform(size=u.shape) > 0.3).astype(float)
     model = pj.Preisach(r, c, np.zeros((K, M)), blur=1.0 / M)
     B = np.concatenate([np.asarray(model.basis(u)), np.ones((len(u), 1))], axis=1)
-    G, h, yy, n = normal_equations(jnp.asarray(u), jnp.asarray(y), jnp.asarray(w), jnp.asarray(r),
-                                   jnp.asarray(c), jnp.full(M, 1.0 / M), jnp.full(K, u[0]),
-                                   chunk=37, n_blocks=3)
+    G, h, yy, n = normal_equations(
+        jnp.asarray(u),
+        jnp.asarray(y),
+        jnp.asarray(w),
+        jnp.asarray(r),
+        jnp.asarray(c),
+        jnp.full(M, 1.0 / M),
+        jnp.full(K, u[0]),
+        chunk=37,
+        n_blocks=3,
+    )
     np.testing.assert_allclose(np.asarray(G).sum(0), (B * w[:, None]).T @ B, atol=1e-9)
     np.testing.assert_allclose(np.asarray(h).sum(0), (B * w[:, None]).T @ y, atol=1e-9)
     np.testing.assert_allclose(float(yy.sum()), np.sum(w * y * y), rtol=1e-12)
@@ -199,8 +205,7 @@ def test_fit_recovers_a_known_density_without_noise(rng):
     np.testing.assert_allclose(np.asarray(fit.model.density), mu, atol=1e-6)
     np.testing.assert_allclose(float(fit.model.offset), 0.3, atol=1e-6)
     v = reversal_input(rng, 40, 7)
-    np.testing.assert_allclose(np.asarray(fit.model(v)), np.asarray(pj.Preisach(r, c, mu, 0.3)(v)),
-                               atol=1e-7)
+    np.testing.assert_allclose(np.asarray(fit.model(v)), np.asarray(pj.Preisach(r, c, mu, 0.3)(v)), atol=1e-7)
 
 
 def test_fit_with_noise_chooses_a_smoothness_and_predicts_near_the_noise(rng):
@@ -244,11 +249,9 @@ def test_fit_is_in_the_data_units_and_honours_the_mask(rng):
     y_bad[200:300] += 5.0
     mask = np.ones_like(u)
     mask[200:300] = 0.0
-    fit = pj.fit_preisach(3.0 * u + 2.0, 10.0 * y_bad - 1.0, n_widths=K, n_centres=M,
-                          smoothness=0.0, mask=mask)
+    fit = pj.fit_preisach(3.0 * u + 2.0, 10.0 * y_bad - 1.0, n_widths=K, n_centres=M, smoothness=0.0, mask=mask)
     v = reversal_input(rng, 30, 6)
-    np.testing.assert_allclose(np.asarray(fit.model(3.0 * v + 2.0)),
-                               10.0 * np.asarray(truth(v)) - 1.0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(fit.model(3.0 * v + 2.0)), 10.0 * np.asarray(truth(v)) - 1.0, atol=1e-6)
 
 
 @given(seed=st.integers(0, 2**31 - 1), relaxed=st.booleans())
@@ -256,8 +259,13 @@ def test_inverse_of_a_monotone_model_reproduces_the_output(seed, relaxed):
     rng = np.random.default_rng(seed)
     K, M = 4, 6
     r, c = grid(K, M)
-    model = pj.Preisach(r, c, rng.uniform(0.0, 1.0, (K, M)) * (rng.uniform(size=(K, M)) > 0.3),
-                        offset=0.3, initial_states=None if relaxed else rng.uniform(-0.5, 0.5, K))
+    model = pj.Preisach(
+        r,
+        c,
+        rng.uniform(0.0, 1.0, (K, M)) * (rng.uniform(size=(K, M)) > 0.3),
+        offset=0.3,
+        initial_states=None if relaxed else rng.uniform(-0.5, 0.5, K),
+    )
     u = np.clip(np.cumsum(rng.normal(size=80)) * 0.2, -1.0, 1.0)
     y = np.asarray(model(u))
     u_hat = np.asarray(model.inverse(y))
@@ -278,11 +286,9 @@ def test_inverse_saturates_and_works_under_jit_and_after_a_monotone_fit(rng):
     np.testing.assert_allclose(float(model(u)[3]), 5.0, atol=1e-10)
     truth = pj.Preisach(r, c, smooth_density(K, M), 0.1)
     v = reversal_input(rng, 80, 10)
-    fit = pj.fit_preisach(v, np.asarray(truth(v)), n_widths=K, n_centres=M, monotone=True,
-                          smoothness=0.0)
+    fit = pj.fit_preisach(v, np.asarray(truth(v)), n_widths=K, n_centres=M, monotone=True, smoothness=0.0)
     target = np.asarray(truth(v))[:200]
-    np.testing.assert_allclose(np.asarray(fit.model(fit.model.inverse(target))), target,
-                               atol=1e-8)
+    np.testing.assert_allclose(np.asarray(fit.model(fit.model.inverse(target))), target, atol=1e-8)
 
 
 def test_inverse_refuses_a_negative_density():
@@ -336,8 +342,7 @@ def test_traced_bad_values_are_caught():
     ],
 )
 def test_fit_errors(kwargs, match):
-    args = dict(u=np.sin(np.arange(100) / 5.0), y=np.cos(np.arange(100) / 5.0), n_widths=3,
-                n_centres=4)
+    args = dict(u=np.sin(np.arange(100) / 5.0), y=np.cos(np.arange(100) / 5.0), n_widths=3, n_centres=4)
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         pj.fit_preisach(args.pop("u"), args.pop("y"), **args)

@@ -40,7 +40,7 @@ def test_score_blocks_equal_the_dense_sums(window, chunk):
     keep = np.array([0, 3, 8, 20, K * M])
     B = np.concatenate([dense_relays(u, r, c, d, x0), np.ones((u.size, 1))], axis=1)[:, keep]
     g = B * e[:, None]
-    W = np.array([g[t - window + 1:t + 1].sum(0) for t in range(window - 1, u.size)])
+    W = np.array([g[t - window + 1 : t + 1].sum(0) for t in range(window - 1, u.size)])
     got = preisach_covariance.score_blocks(u, e, r, c, d, x0, keep, window, chunk)
     np.testing.assert_allclose(got, W.T @ W, rtol=1e-10, atol=1e-10)
 
@@ -48,8 +48,7 @@ def test_score_blocks_equal_the_dense_sums(window, chunk):
 def _truth(u):
     # A smooth density over the grid fit_preisach builds (centres tiling the input range, half
     # widths up to half of it), so the model is in the fitted class.
-    f = pj.fit_preisach(u, np.tanh(u) + 0.1 * u, n_widths=K, n_centres=M, smoothness=1e-3,
-                        covariance=None)
+    f = pj.fit_preisach(u, np.tanh(u) + 0.1 * u, n_widths=K, n_centres=M, smoothness=1e-3, covariance=None)
     return np.asarray(f.model(u))
 
 
@@ -85,8 +84,13 @@ def test_cells_held_at_zero_and_cells_the_record_never_switches():
     # An input that stays in the upper part of its range after a first dip: the relays of the
     # lower part switch once at most, together, and the record cannot tell them apart.
     v = np.concatenate([np.linspace(0.0, -2.0, 50), 1.0 + np.abs(signal(750))])
-    g = pj.fit_preisach(v, np.tanh(v) + 0.01 * np.random.default_rng(2).standard_normal(v.size),
-                        n_widths=K, n_centres=M, smoothness=1e-3)
+    g = pj.fit_preisach(
+        v,
+        np.tanh(v) + 0.01 * np.random.default_rng(2).standard_normal(v.size),
+        n_widths=K,
+        n_centres=M,
+        smoothness=1e-3,
+    )
     bad = g.undetermined_names
     assert bad and all(n.startswith("density[") for n in bad)
     assert np.all(np.isinf(np.asarray(g.std_errors)[np.asarray(g.undetermined)]))
@@ -104,10 +108,11 @@ def test_cli_fit_json_has_a_standard_error_for_every_parameter(tmp_path):
     u = signal(600)
     y = np.tanh(u) + 1e-3 * np.random.default_rng(1).standard_normal(u.size)
     data = tmp_path / "r.csv"
-    data.write_text("t,u,y\n" + "\n".join(f"{i * 1e-3:.6f},{a:.17g},{b:.17g}"
-                                         for i, (a, b) in enumerate(zip(u, y))))
-    assert pj.run_cli(["fit", str(data), "--model", "preisach", "--grid", "6,6",
-                       "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    data.write_text("t,u,y\n" + "\n".join(f"{i * 1e-3:.6f},{a:.17g},{b:.17g}" for i, (a, b) in enumerate(zip(u, y))))
+    assert (
+        pj.run_cli(["fit", str(data), "--model", "preisach", "--grid", "6,6", "--out", str(tmp_path / "o"), "--quiet"])
+        == 0
+    )
     rep = json.loads((tmp_path / "o" / "fit.json").read_text())
     names = rep["covariance"]["parameter_names"]
     assert names[-1] == "offset" and len(names) == 1 + sum(n.startswith("density[") for n in names)

@@ -35,8 +35,17 @@ ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 # Pages whose blocks are excerpts of the package's code (with `...`), not a session to run.
 EXCERPTS = {"architecture.md"}
-GUIDE = ["cli.md", "tour.md", "paper.md", "excitation.md", "fitting.md", "diagnosis.md", "performance.md",
-         "reliability.md", "data.md"]
+GUIDE = [
+    "cli.md",
+    "tour.md",
+    "paper.md",
+    "excitation.md",
+    "fitting.md",
+    "diagnosis.md",
+    "performance.md",
+    "reliability.md",
+    "data.md",
+]
 FENCE = re.compile(r"^```[ \t]*([\w+-]*)[^\n]*\n(.*?)^```[ \t]*$", re.M | re.S)
 SHELL = {"bash", "sh", "shell", "console", "zsh"}
 RUN = {"simulate"}  # help examples cheap enough to run for real here
@@ -126,7 +135,8 @@ def test_every_page_with_code_is_checked():
     for page in sorted((ROOT / "docs").rglob("*.md")):
         runnable = [lang for lang, _ in code_blocks(page.read_text(encoding="utf-8")) if lang in SHELL | PYTHON_LANGS]
         assert not runnable or page.name in GUIDE or page.name in EXCERPTS, (
-            f"{page} has code blocks that no test runs: add it to GUIDE")
+            f"{page} has code blocks that no test runs: add it to GUIDE"
+        )
 
 
 def test_every_block_is_run_or_checked():

@@ -104,8 +104,10 @@ def test_gradient_matches_finite_differences():
     [
         ({"delay": 0.0037, "asymmetry": 0.2}, {"delay": 0.0043, "asymmetry": 0.26}),
         ({"linear_dynamics": ("second", 300.0, 0.3)}, {"linear_dynamics": ("second", 340.0, 0.36)}),
-        ({"rate_dependence": ("scale", 0.5, 1.0), "initial_state": (0.7, -0.3)},
-         {"rate_dependence": ("scale", 0.62, 0.85), "initial_state": (0.6, -0.25)}),
+        (
+            {"rate_dependence": ("scale", 0.5, 1.0), "initial_state": (0.7, -0.3)},
+            {"rate_dependence": ("scale", 0.62, 0.85), "initial_state": (0.6, -0.25)},
+        ),
     ],
     ids=["delay+asymmetry", "second_order", "rate+initial_state"],
 )

@@ -42,9 +42,7 @@ def test_cli_reproduce_all_writes_figures_and_json(tmp_path, capsys):
         # the last weight cannot be seen before its play first moves (u > r_3)
         assert rep["time_input_exceeds_r_max"] <= rep["time_to_1pct"]
         # larger P0 never converges later (the second panel's trend), small P0 does not in 1 s
-        ts = np.asarray(
-            [np.inf if v is None else v for v in rep["sweep"]["time_to_1pct"]["paper"]]
-        )
+        ts = np.asarray([np.inf if v is None else v for v in rep["sweep"]["time_to_1pct"]["paper"]])
         assert np.isinf(ts[0]) and np.isfinite(ts[-1])
         assert np.all(np.diff(ts[np.isfinite(ts)]) <= 1e-12)
 

@@ -116,16 +116,16 @@ def test_rescale_gives_every_estimator_the_same_answer_in_any_units(unit_problem
     np.testing.assert_allclose(w, np.broadcast_to(w[unit], w.shape), rtol=0, atol=rtol * W.max())
     np.testing.assert_allclose(w[unit], W, rtol=0, atol=conv * W.max())
     err = np.asarray(e.error, np.float64) / sy
-    np.testing.assert_allclose(err, np.broadcast_to(err[unit], err.shape), rtol=0,
-                               atol=rtol * np.abs(y).max())
+    np.testing.assert_allclose(err, np.broadcast_to(err[unit], err.shape), rtol=0, atol=rtol * np.abs(y).max())
     tr = np.asarray(e.gain_trace, np.float64) * su**2
     np.testing.assert_allclose(tr, np.broadcast_to(tr[unit], tr.shape), rtol=10 * rtol)
     # Initial weights are in the user's units too: started at the truth, noise-free data keep
     # every estimator there.
     w0 = jnp.asarray(W[None, :] * sy / su, dtype)
     e0 = _rescaled(est, Hs, ys, w0)
-    np.testing.assert_allclose(np.asarray(e0.weights, np.float64) * (su / sy)[:, :, None],
-                               np.broadcast_to(W, e0.weights.shape), rtol=10 * rtol)
+    np.testing.assert_allclose(
+        np.asarray(e0.weights, np.float64) * (su / sy)[:, :, None], np.broadcast_to(W, e0.weights.shape), rtol=10 * rtol
+    )
 
 
 def test_rescale_keeps_flat_data_finite():

@@ -34,11 +34,18 @@ def truth(settings):
     """Each draw's PE verdict by rational elimination, on the floats the map's program drew."""
     fn, _ = M._engine(settings, tuple(jax.devices()), True)
     drawn = jax.device_get(fn(pj.draw_keys(jax.random.key(SEED), 0, N_DRAWS)))
-    return np.array([
-        bool(np.all(exact_window_pe(drawn["u"][i], drawn["thresholds"][i], drawn["x0"][i],
-                                    settings.window, settings.stride)))
-        for i in range(N_DRAWS)
-    ])
+    return np.array(
+        [
+            bool(
+                np.all(
+                    exact_window_pe(
+                        drawn["u"][i], drawn["thresholds"][i], drawn["x0"][i], settings.window, settings.stride
+                    )
+                )
+            )
+            for i in range(N_DRAWS)
+        ]
+    )
 
 
 def test_settled_verdicts_are_the_rational_rank_on_every_draw(settled, settings, truth):
@@ -126,9 +133,29 @@ def test_settle_band_values():
 
 def test_cli_settle_writes_exact_verdicts(tmp_path, settled):
     out = tmp_path / "map"
-    args = ["montecarlo", "--inputs", str(N_DRAWS), "--samples", "300", "--seed", str(SEED),
-            "--plays", "4", "--window", "60", "--stride", "15", "--dt", "0.01",
-            "--families", ",".join(pj.INPUT_FAMILIES), "--settle", "--quiet", "--out", str(out)]
+    args = [
+        "montecarlo",
+        "--inputs",
+        str(N_DRAWS),
+        "--samples",
+        "300",
+        "--seed",
+        str(SEED),
+        "--plays",
+        "4",
+        "--window",
+        "60",
+        "--stride",
+        "15",
+        "--dt",
+        "0.01",
+        "--families",
+        ",".join(pj.INPUT_FAMILIES),
+        "--settle",
+        "--quiet",
+        "--out",
+        str(out),
+    ]
     assert main(args) == 0
     rep = json.loads((out / "pe_map.json").read_text())
     np.testing.assert_array_equal(rep["draws"]["pe"], settled["pe"])

@@ -49,8 +49,7 @@ def test_chunks_are_the_record_in_any_chunking(tmp_path_factory, n, chunk, size)
 
 def test_columns_units_and_data_without_time(tmp_path):
     t, u, y = _record(300)
-    path = _write(tmp_path / "named.csv", "time_s,extra,voltage_V,displacement_um",
-                  np.column_stack([t, 0 * t, u, y]))
+    path = _write(tmp_path / "named.csv", "time_s,extra,voltage_V,displacement_um", np.column_stack([t, 0 * t, u, y]))
     stream = pj.open_record_stream(path, columns="time_s,voltage_V,displacement_um")
     rec = pj.load_record(path, columns="time_s,voltage_V,displacement_um")
     np.testing.assert_array_equal(np.concatenate([c[0] for c in stream.chunks(64)]), rec.u)
@@ -110,8 +109,7 @@ def test_estimate_on_a_stream_equals_the_record_read_whole(tmp_path, start):
         S.CHUNK_ROWS = old
     rec = pj.load_record(path)
     b = pj.estimate_record(pj.ContinuousRLS(1e6, stream.dt), rec.u, rec.y, r, **kw)
-    for field in ("weights", "offset", "weights_trajectory", "error_rms", "pe_levels", "gram_bound",
-                  "initial_states"):
+    for field in ("weights", "offset", "weights_trajectory", "error_rms", "pe_levels", "gram_bound", "initial_states"):
         np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
     assert a.final_rmse == b.final_rmse
     assert pj.settled_start(stream) == pj.settled_start(rec.u)
@@ -125,8 +123,9 @@ def test_cli_estimate_streams_a_large_file_and_writes_what_the_whole_read_writes
     assert main([*argv, "--out", str(tmp_path / "whole")]) == 0
     monkeypatch.setattr(R, "STREAM_BYTES", 1000)
     read = []
-    monkeypatch.setattr(S.RecordStream, "_rows", lambda self, size, f=S.RecordStream._rows: read.append(size)
-                        or f(self, size))
+    monkeypatch.setattr(
+        S.RecordStream, "_rows", lambda self, size, f=S.RecordStream._rows: read.append(size) or f(self, size)
+    )
     assert main([*argv, "--out", str(tmp_path / "stream")]) == 0
     assert len(read) >= 4  # the check, the settled start, the estimate, the final RMSE
     a, b = (json.loads((tmp_path / d / "estimate.json").read_text()) for d in ("whole", "stream"))

@@ -30,8 +30,7 @@ def reference_reversals(u, fraction):
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.floats(-5, 5, allow_nan=False), min_size=3, max_size=60),
-       st.sampled_from([0.05, 0.1, 0.3]))
+@given(st.lists(st.floats(-5, 5, allow_nan=False), min_size=3, max_size=60), st.sampled_from([0.05, 0.1, 0.3]))
 def test_reversals_match_a_plain_loop(values, fraction):
     u = np.asarray(values)
     assert tc.reversals(u, fraction) == reference_reversals(u, fraction)
@@ -55,8 +54,7 @@ def test_reversals_of_a_sine_and_its_floor():
 
 
 @settings(max_examples=50, deadline=None)
-@given(st.lists(st.floats(-4, 4, allow_nan=False), min_size=1, max_size=5),
-       st.floats(1.0, 1e3))
+@given(st.lists(st.floats(-4, 4, allow_nan=False), min_size=1, max_size=5), st.floats(1.0, 1e3))
 def test_any_parameters_give_ordered_bounded_time_constants(theta, shortest):
     base = tc.lag_base(len(theta), shortest)
     log_tau = np.asarray(tc.lag_log_tau(jnp.asarray(theta, jnp.float64), base))
@@ -88,8 +86,9 @@ def test_fit_keeps_the_bounds_and_names_bad_ones():
     t = dt * np.arange(T)
     u = 1.0 + np.sin(2 * np.pi * 0.5 * t)
     # A lag far faster than the input: the fit may not follow it below the floor.
-    y = np.asarray(pj.HysteresisModel(pj.PIOperator([0.0, 0.4], [1.0, 0.5], u[0]),
-                                      pj.Creep([0.02], [0.3], dt), 0.1, dt)(u))
+    y = np.asarray(
+        pj.HysteresisModel(pj.PIOperator([0.0, 0.4], [1.0, 0.5], u[0]), pj.Creep([0.02], [0.3], dt), 0.1, dt)(u)
+    )
     floor = pj.shortest_time_constant(u, dt)
     f = pj.fit_pi(u, y, 2, n_lags=2, dt=dt, key=jax.random.key(0))
     tau = np.asarray(f.creep.time_constants)

@@ -97,8 +97,7 @@ print("max |play - reference| =", float(np.max(np.abs(X[:, 2] - ref))))
 # %%
 E = pj.stop(u, r)
 print("stop outputs lie in [-r, r]:", bool(jnp.all(jnp.abs(E) <= r + 1e-12)))
-print("E = u - H with the matching initial state:",
-      float(jnp.max(jnp.abs(E - (u[:, None] - pj.play(u, r, u[0]))))))
+print("E = u - H with the matching initial state:", float(jnp.max(jnp.abs(E - (u[:, None] - pj.play(u, r, u[0]))))))
 fig, ax = plt.subplots(figsize=(5, 3.4))
 for j, rj in enumerate(r[1:], start=1):
     ax.plot(u, E[:, j], label=f"r = {float(rj):g}")
@@ -122,8 +121,7 @@ t5 = pj.time_grid(1.0, 1e-3)
 u5 = pj.sine(t5, amplitude=10.0, frequency=5.0)
 y5 = op(u5)
 H5 = op.regressor(u5)
-print("n_plays =", op.n_plays, "| H:", H5.shape, "| max |y - H W| =",
-      float(jnp.max(jnp.abs(y5 - H5 @ weights))))
+print("n_plays =", op.n_plays, "| H:", H5.shape, "| max |y - H W| =", float(jnp.max(jnp.abs(y5 - H5 @ weights))))
 
 fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.6))
 a1.plot(u5, y5)
@@ -158,7 +156,7 @@ print("run in two pieces == one run:", bool(jnp.array_equal(y_pieces, y5)))
 
 fig, ax = plt.subplots(figsize=(5, 3.4))
 ax.plot(u5, y5, label="relaxed start")
-ax.plot(u5[:wiped + 1], y_mem[:wiped + 1], "--", label=f"x(0) = {list(np.asarray(x0))}")
+ax.plot(u5[: wiped + 1], y_mem[: wiped + 1], "--", label=f"x(0) = {list(np.asarray(x0))}")
 ax.set(xlabel="u", ylabel="y", title="memory of the initial states")
 ax.legend(fontsize=8)
 fig.tight_layout()
@@ -258,10 +256,7 @@ fd_r = [
     (loss((p0[0].at[j].add(eps), p0[1])) - loss((p0[0].at[j].add(-eps), p0[1]))) / (2 * eps)
     for j in (1, 2)  # r_1 = 0 sits on the boundary r >= 0
 ]
-fd_w = [
-    (loss((p0[0], p0[1].at[j].add(eps))) - loss((p0[0], p0[1].at[j].add(-eps)))) / (2 * eps)
-    for j in range(3)
-]
+fd_w = [(loss((p0[0], p0[1].at[j].add(eps))) - loss((p0[0], p0[1].at[j].add(-eps)))) / (2 * eps) for j in range(3)]
 print("d loss / d r2, r3 : grad", np.round(np.asarray(g[0][1:]), 6), " finite diff", np.round(fd_r, 6))
 print("d loss / d w      : grad", np.round(np.asarray(g[1]), 6), " finite diff", np.round(fd_w, 6))
 
@@ -282,9 +277,7 @@ def residuals(z, args):
 
 
 z0 = (jnp.log(jnp.array([2.5, 5.0])), p0[1])
-sol = optx.least_squares(
-    residuals, optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10), z0, max_steps=100, throw=False
-)
+sol = optx.least_squares(residuals, optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10), z0, max_steps=100, throw=False)
 r_fit, w_fit = unpack(sol.value)
 print("solver:", sol.result == optx.RESULTS.successful, "in", int(sol.stats["num_steps"]), "steps")
 print("thresholds", np.round(np.asarray(r_fit), 6), "(true", np.round(np.asarray(thresholds), 6), ")")

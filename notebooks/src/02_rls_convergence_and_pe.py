@@ -136,9 +136,11 @@ print(f"shortest window with ρ >= 1: {windows[np.argmax(rho >= 1)]} samples")
 
 # %%
 check = pj.lemma1_check(H[:200])
-print(f"Lemma 1 on the first 0.2 s: rank {int(check.rank)} of 3, "
-      f"smallest singular value {float(check.smallest_singular_value):.3g}, "
-      f"independent: {bool(check.independent)}")
+print(
+    f"Lemma 1 on the first 0.2 s: rank {int(check.rank)} of 3, "
+    f"smallest singular value {float(check.smallest_singular_value):.3g}, "
+    f"independent: {bool(check.independent)}"
+)
 print("plays moving in each 0.2 s window:", np.asarray(pj.excited_plays(H, 200, stride=200)).all(axis=0))
 
 # %% [markdown]
@@ -209,6 +211,11 @@ fig.tight_layout()
 # %%
 op_mem = pj.PIOperator(r, W, initial_states=jnp.array([0.0, 0.0, 1.0]))
 H_mem = op_mem.regressor(u_small)
-print("with x3(0) = 1: ρ =", round(float(pj.assumption1_ratio(u_small, r[-1], 200)), 3),
-      "but c1 =", f"{float(pj.pe_level(H_mem, 200)):.3g}",
-      "| Lemma 1 independent:", bool(pj.lemma1_check(H_mem[:200]).independent))
+print(
+    "with x3(0) = 1: ρ =",
+    round(float(pj.assumption1_ratio(u_small, r[-1], 200)), 3),
+    "but c1 =",
+    f"{float(pj.pe_level(H_mem, 200)):.3g}",
+    "| Lemma 1 independent:",
+    bool(pj.lemma1_check(H_mem[:200]).independent),
+)

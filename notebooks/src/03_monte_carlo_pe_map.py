@@ -65,6 +65,7 @@ pe = res["c1_normalised"] > tol
 sharp = res["sharper"]
 print(f"{N_DRAWS} draws in {res['seconds']:.1f} s (including compilation)")
 
+
 def confusion(cond, name):
     print(f"{'':>24}{'PE':>8}{'not PE':>8}")
     print(f"{name + ' holds':>24}{np.sum(cond & pe):>8}{np.sum(cond & ~pe):>8}")
@@ -96,14 +97,16 @@ for k, fam in enumerate(pj.INPUT_FAMILIES):
     a1x.loglog(res["rho"][sel], c1n[sel], ".", ms=2, label=fam)
 a1x.axvline(1, color="k", lw=0.8, ls=":")
 a1x.axhline(tol, color="r", lw=0.8, ls=":")
-a1x.set(xlabel="Assumption 1 ratio ρ", ylabel="normalised PE level λmin/λmax",
-        title="the map: ρ ≥ 1 (right of the line) vs PE (above red)")
+a1x.set(
+    xlabel="Assumption 1 ratio ρ",
+    ylabel="normalised PE level λmin/λmax",
+    title="the map: ρ ≥ 1 (right of the line) vs PE (above red)",
+)
 a1x.legend(fontsize=7, markerscale=4)
 a2x.loglog(c1n[sharp], err[sharp], ".", ms=2, label="sharper condition holds")
 a2x.loglog(c1n[~sharp], err[~sharp], ".", ms=2, label="fails")
 a2x.axvline(tol, color="r", lw=0.8, ls=":")
-a2x.set(xlabel="normalised PE level", ylabel="RLS relative weight error",
-        title="excitation buys convergence")
+a2x.set(xlabel="normalised PE level", ylabel="RLS relative weight error", title="excitation buys convergence")
 a2x.legend(fontsize=8, markerscale=4)
 fig.tight_layout()
 
@@ -113,8 +116,10 @@ for k, fam in enumerate(pj.INPUT_FAMILIES):
     sel = res["family"] == k
     if not sel.any():
         continue
-    print(f"{fam:<10}{sel.sum():>7}{a1[sel].mean():>7.2f}{sharp[sel].mean():>9.2f}"
-          f"{pe[sel].mean():>7.2f}{np.median(err[sel]):>18.2e}")
+    print(
+        f"{fam:<10}{sel.sum():>7}{a1[sel].mean():>7.2f}{sharp[sel].mean():>9.2f}"
+        f"{pe[sel].mean():>7.2f}{np.median(err[sel]):>18.2e}"
+    )
 
 # %% [markdown]
 # ## 2. The sharper condition on two hand-made cases
@@ -131,9 +136,11 @@ r = jnp.array([0.0, 10 / 3, 20 / 3])
 for x0 in (jnp.zeros(3), jnp.array([0.0, 0.0, 1.0])):
     H = pj.play(u, r, x0)
     ok = pj.sharper_condition(H, u, 200, stride=20)
-    print(f"x(0) = {np.asarray(x0)}: ρ = {float(pj.assumption1_ratio(u, r[-1], 200)):.2f}, "
-          f"sharper condition in every window: {bool(jnp.all(ok))}, "
-          f"c1 = {float(pj.pe_level(H, 200, stride=20)):.3g}")
+    print(
+        f"x(0) = {np.asarray(x0)}: ρ = {float(pj.assumption1_ratio(u, r[-1], 200)):.2f}, "
+        f"sharper condition in every window: {bool(jnp.all(ok))}, "
+        f"c1 = {float(pj.pe_level(H, 200, stride=20)):.3g}"
+    )
 
 # %% [markdown]
 # ## 3. Sharding across devices

@@ -139,8 +139,10 @@ fit_a = pj.fit_pi(ui, yi, 4)
 model_v = pj.PIOperator(fit_a.thresholds, fit_a.weights, uv[0])
 pred_v = model_v(uv) + fit_a.offset
 rms = lambda e: float(jnp.sqrt(jnp.mean(e**2)))  # noqa: E731
-print(f"identification RMSE {float(fit_a.rmse):.3f}, validation RMSE {rms(pred_v - yv):.3f} "
-      f"(output range {float(jnp.ptp(yv)):.1f}, sensor units)")
+print(
+    f"identification RMSE {float(fit_a.rmse):.3f}, validation RMSE {rms(pred_v - yv):.3f} "
+    f"(output range {float(jnp.ptp(yv)):.1f}, sensor units)"
+)
 
 fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.6))
 a1.plot(ui, yi, lw=0.6)
@@ -168,8 +170,10 @@ plant_fit = pj.fit_pi(u, y, max(CANDIDATES))
 tt = jnp.arange(2000) * 1e-3
 desired = 8.0 * jnp.sin(2 * jnp.pi * 1.0 * tt) + 4.0 * jnp.sin(2 * jnp.pi * 3.0 * tt + 0.5)
 comp = pj.evaluate_compensation(plant_fit, fit, desired)
-print(f"tracking RMSE: inverse-model feedforward {float(comp.rmse_compensated):.3f} µm, "
-      f"linear feedforward {float(comp.rmse_linear):.3f} µm")
+print(
+    f"tracking RMSE: inverse-model feedforward {float(comp.rmse_compensated):.3f} µm, "
+    f"linear feedforward {float(comp.rmse_linear):.3f} µm"
+)
 
 fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.6))
 a1.plot(tt, comp.desired, "k", lw=1, label="desired")

@@ -63,8 +63,10 @@ report = pj.diagnose(rec, **SEARCH)
 print("named:", report.effects)
 print(f"RMSE plain PI {report.baseline_rmse:.4f} -> with named effects {report.final_rmse:.4f}")
 ref = report.refinement["model_final"]
-print(f"joint Levenberg-Marquardt refinement: {ref['result']} after {ref['steps']} steps, "
-      f"RMSE {ref['rmse_start']:.4f} -> {ref['rmse']:.4f} (kept: {ref['kept']})")
+print(
+    f"joint Levenberg-Marquardt refinement: {ref['result']} after {ref['steps']} steps, "
+    f"RMSE {ref['rmse_start']:.4f} -> {ref['rmse']:.4f} (kept: {ref['kept']})"
+)
 print("parameters:", report.parameters)
 
 # %% [markdown]
@@ -77,8 +79,9 @@ for name, c in sorted(first["candidates"].items(), key=lambda kv: -kv[1]["score"
     print(f"  {name:<16} held-out RMSE {c['heldout_rmse']:.4f}   score {c['score']:8.2f}")
 print("\nwhere the plain model disagrees most:")
 for w in [w for w in report.where if w["structured"]][:6]:
-    detail = (f"r = {w['correlation']:.2f}" if w["kind"] == "correlation"
-              else f"{w['ratio_to_noise']:.1f}x the noise floor")
+    detail = (
+        f"r = {w['correlation']:.2f}" if w["kind"] == "correlation" else f"{w['ratio_to_noise']:.1f}x the noise floor"
+    )
     print(f"  {w['kind']:<12} {w['name']:<24} {detail}")
 
 
@@ -122,16 +125,14 @@ print("named:", real.effects)
 print(f"noise floor {real.noise_std_estimate:.3f} (sensor units)")
 print(f"{'':<22}{'plain PI':>10}{'with effects':>14}")
 print(f"{'identification RMSE':<22}{real.baseline_rmse:>10.3f}{real.final_rmse:>14.3f}")
-print(f"{'validation RMSE':<22}{v.baseline_rmse:>10.3f}{v.final_rmse:>14.3f}"
-      f"   (effects used: {v.effects_used})")
+print(f"{'validation RMSE':<22}{v.baseline_rmse:>10.3f}{v.final_rmse:>14.3f}   (effects used: {v.effects_used})")
 show(real, "Aye identification run")
 
 # %%
 vr = v.record
 fig, ax = plt.subplots(figsize=(11, 3.4))
 ax.plot(vr.t, vr.y - v.baseline_prediction, lw=0.6, label=f"plain PI ({v.baseline_rmse:.3g})")
-ax.plot(vr.t, vr.y - v.final_prediction, lw=0.6,
-        label=f"with named effects ({v.final_rmse:.3g})")
+ax.plot(vr.t, vr.y - v.final_prediction, lw=0.6, label=f"with named effects ({v.final_rmse:.3g})")
 ax.set(xlabel="t [s]", ylabel="residual", title="validation run: a model it was not fitted to")
 ax.legend(fontsize=8)
 fig.tight_layout()

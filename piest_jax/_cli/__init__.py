@@ -220,8 +220,7 @@ def _internal(args, e: Exception) -> int:
         raise e
     msg = _one_line(e)[:300]
     print(
-        f"piest {args.command}: internal error ({type(e).__name__}: {msg}); "
-        "rerun with PIEST_DEBUG=1 for the traceback",
+        f"piest {args.command}: internal error ({type(e).__name__}: {msg}); rerun with PIEST_DEBUG=1 for the traceback",
         file=sys.stderr,
     )
     return 1

@@ -17,13 +17,12 @@ def add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
         help=f"folder for the results (default: {default_out}); created if missing",
     )
     p.add_argument(
-        "--force", action="store_true",
+        "--force",
+        action="store_true",
         help="replace results already in --out (files this command wrote there before and does "
         "not write this time are removed, so the folder holds one run)",
     )
-    p.add_argument(
-        "--quiet", action="store_true", help="no progress bars; print only the paths written"
-    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars; print only the paths written")
 
 
 # Counts beyond this overflow 32-bit indices (and every memory); seeds are 63-bit.
@@ -86,9 +85,7 @@ def float_list(text: str) -> list[float]:
     try:
         vals = [float(s) for s in text.replace(" ", "").split(",") if s]
     except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated numbers such as 0,1.5,3, got {text!r}"
-        ) from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers such as 0,1.5,3, got {text!r}") from None
     if not vals:
         raise argparse.ArgumentTypeError("expected at least one number")
     if any(v != v or v in (float("inf"), float("-inf")) for v in vals):
@@ -118,19 +115,19 @@ def columns_arg(count, example: str):
 def add_record_options(p: argparse.ArgumentParser) -> None:
     """--columns, --resample and --segment, for every command that reads a (t, u, y) record."""
     p.add_argument(
-        "--columns", type=columns_arg((3, 2), "time_s,voltage_V,displacement_um or H,B"),
+        "--columns",
+        type=columns_arg((3, 2), "time_s,voltage_V,displacement_um or H,B"),
         metavar="[TIME,]INPUT,OUTPUT",
         help="the data file's names of its time, input and output columns (default t,u,y; "
         "names match without case or a unit in brackets: `t [s]` is t); two names for data "
         "without time, whose samples are then counted (step 1)",
     )
+    p.add_argument("--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid")
     p.add_argument(
-        "--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid"
-    )
-    p.add_argument(
-        "--segment", type=finite_float, metavar="LABEL",
-        help="of a record with a `segment` column (several loops or reversal curves), use the "
-        "segment with this label",
+        "--segment",
+        type=finite_float,
+        metavar="LABEL",
+        help="of a record with a `segment` column (several loops or reversal curves), use the segment with this label",
     )
 
 
@@ -163,8 +160,11 @@ def read_record(path, args, *, validation: bool = False):
 
 def note_sample_time(args, path) -> None:
     """The note for a record whose time counts samples."""
-    note(args, f"{path} has no time in seconds: t counts samples (step 1), so the times, "
-         "time constants and rates in the results are in samples")
+    note(
+        args,
+        f"{path} has no time in seconds: t counts samples (step 1), so the times, "
+        "time constants and rates in the results are in samples",
+    )
 
 
 def record_fields(rec, args) -> dict:

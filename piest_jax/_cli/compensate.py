@@ -51,7 +51,9 @@ def add_arguments(p):
     p.add_argument("desired", metavar="DESIRED.csv", help="CSV with t and the desired output")
     p.add_argument("--column", default=None, help="the desired-output column (default desired, y)")
     p.add_argument(
-        "--columns", type=columns_arg(2, "time_s,target_um"), metavar="TIME,DESIRED",
+        "--columns",
+        type=columns_arg(2, "time_s,target_um"),
+        metavar="TIME,DESIRED",
         help="DESIRED.csv's names of its time and desired-output columns (instead of t and --column)",
     )
     p.add_argument(
@@ -109,11 +111,15 @@ def run(args) -> int:
     if creep is not None and len(t) > 1:
         dt = float(np.median(np.diff(t)))
         if not np.isclose(dt, creep.dt, rtol=1e-3):
-            raise CLIError(f"{args.desired}: sampled every {dt:g}, but the model's creep was "
-                           f"identified at dt = {creep.dt:g}; resample the desired output")
-    memory.require(memory.stream_bytes(len(t), len(r)),
-                   f"{args.model} ({len(r)} plays) on {args.desired} ({len(t)} samples)",
-                   "use a shorter desired output or a model with fewer plays")
+            raise CLIError(
+                f"{args.desired}: sampled every {dt:g}, but the model's creep was "
+                f"identified at dt = {creep.dt:g}; resample the desired output"
+            )
+    memory.require(
+        memory.stream_bytes(len(t), len(r)),
+        f"{args.model} ({len(r)} plays) on {args.desired} ({len(t)} samples)",
+        "use a shorter desired output or a model with fewer plays",
+    )
     if args.initial_states is not None:
         x0 = np.full(r.shape, args.initial_states)
     try:
@@ -131,10 +137,12 @@ def run(args) -> int:
         ym = np.asarray(model(u))
         steady = float(np.sum(np.asarray(creep.weights)))
         if float(w[0]) + steady <= 0:
-            print(f"piest compensate: note: {args.model}: the creep's steady gain ({steady:.4g}) outweighs "
-                  f"the first play's weight ({float(w[0]):.4g}), so the model's static map falls where only "
-                  "that play moves; the feedforward can drift on a slowly varying desired output",
-                  file=sys.stderr)
+            print(
+                f"piest compensate: note: {args.model}: the creep's steady gain ({steady:.4g}) outweighs "
+                f"the first play's weight ({float(w[0]):.4g}), so the model's static map falls where only "
+                "that play moves; the feedforward can drift on a slowly varying desired output",
+                file=sys.stderr,
+            )
     return _write(args, out, t, yd, u, ym, {"column": col, "initial_states": x0})
 
 
@@ -150,13 +158,14 @@ def _run_own_inverse(args, out, model, t, yd, col) -> int:
     """`piest compensate` for a model that carries its own inverse (gpi, preisach)."""
     gpi = isinstance(model, GeneralizedPI)
     n_plays = model.n_plays if gpi else model.shape[0]
-    memory.require(memory.stream_bytes(len(t), n_plays),
-                   f"{args.model} ({n_plays} plays) on {args.desired} ({len(t)} samples)",
-                   "use a shorter desired output or a model with fewer plays")
+    memory.require(
+        memory.stream_bytes(len(t), n_plays),
+        f"{args.model} ({n_plays} plays) on {args.desired} ({len(t)} samples)",
+        "use a shorter desired output or a model with fewer plays",
+    )
     if args.initial_states is not None:
         x0 = np.full(n_plays, args.initial_states)
-        model = model.with_initial_states(admissible_states(model.pi.thresholds, x0) if gpi
-                                          else x0)
+        model = model.with_initial_states(admissible_states(model.pi.thresholds, x0) if gpi else x0)
     try:
         u = np.asarray(feedforward(model, yd))
     except ValueError as e:
@@ -164,9 +173,19 @@ def _run_own_inverse(args, out, model, t, yd, col) -> int:
     ym = np.asarray(model(u))
     states = model.pi.initial_states if gpi else model.initial_states
     # None: a Preisach model's plays at rest at the first input.
-    return _write(args, out, t, yd, u, ym, {
-        "structure": "gpi" if gpi else "preisach", "column": col,
-        "initial_states": None if states is None else np.asarray(states)})
+    return _write(
+        args,
+        out,
+        t,
+        yd,
+        u,
+        ym,
+        {
+            "structure": "gpi" if gpi else "preisach",
+            "column": col,
+            "initial_states": None if states is None else np.asarray(states),
+        },
+    )
 
 
 def _write(args, out, t, yd, u, ym, fields) -> int:
@@ -196,14 +215,20 @@ def _outside(path, u) -> dict:
     from .._identification.model_file import read_json
 
     rng = read_json(path).get("input_range")
-    ok = (isinstance(rng, list) and len(rng) == 2
-          and all(isinstance(v, int | float) and not isinstance(v, bool) for v in rng))
+    ok = (
+        isinstance(rng, list)
+        and len(rng) == 2
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in rng)
+    )
     if not ok or not all(np.isfinite(rng)) or rng[0] > rng[1]:
         return {}  # the model file does not say (not written by `piest fit`, or an older one)
     lo, hi = float(rng[0]), float(rng[1])
     frac = float(np.mean((u < lo) | (u > hi)))
     if frac > 0:
-        print(f"piest compensate: note: {frac:.1%} of the feedforward input lies outside the input "
-              f"range the model was fitted on [{lo:.4g}, {hi:.4g}] (u from {u.min():.4g} to "
-              f"{u.max():.4g}); the model is extrapolated there", file=sys.stderr)
+        print(
+            f"piest compensate: note: {frac:.1%} of the feedforward input lies outside the input "
+            f"range the model was fitted on [{lo:.4g}, {hi:.4g}] (u from {u.min():.4g} to "
+            f"{u.max():.4g}); the model is extrapolated there",
+            file=sys.stderr,
+        )
     return {"fitted_input_range": [lo, hi], "fraction_outside_fitted_range": frac}

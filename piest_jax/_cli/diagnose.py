@@ -34,9 +34,12 @@ effects:
 {effects}
 
 example:  piest diagnose run1.csv --validate run2.csv --out diag""".replace(
-    "{record_specific}", ", ".join(RECORD_SPECIFIC)).replace(
-    "{effects}", "\n".join(f"  {e.name:<16} {e.summary}" + (" (record-specific)" if e.record_specific else "")
-                      for e in EFFECT.values()),
+    "{record_specific}", ", ".join(RECORD_SPECIFIC)
+).replace(
+    "{effects}",
+    "\n".join(
+        f"  {e.name:<16} {e.summary}" + (" (record-specific)" if e.record_specific else "") for e in EFFECT.values()
+    ),
 )
 
 OUTPUTS = ("report.json", "report.png", "report.md")
@@ -47,16 +50,21 @@ def add_arguments(p):
     p.add_argument("--validate", metavar="VAL.csv", help="a second record to evaluate both models on")
     p.add_argument("--max-effects", type=int, default=3, help="name at most this many (default 3)")
     p.add_argument(
-        "--candidates", metavar="NAMES", default=",".join(EFFECTS),
+        "--candidates",
+        metavar="NAMES",
+        default=",".join(EFFECTS),
         help=f"comma-separated effects to try (default: all {len(EFFECTS)})",
     )
     p.add_argument(
-        "--solver", choices=("lm", "gn", "bfgs", "none"), default="lm",
+        "--solver",
+        choices=("lm", "gn", "bfgs", "none"),
+        default="lm",
         help="optimistix solver for the final joint refinement of both models: lm "
         "(Levenberg-Marquardt, default), gn (Gauss-Newton), bfgs, or none to keep the grid fit",
     )
     p.add_argument(
-        "--json", action="store_true",
+        "--json",
+        action="store_true",
         help="print the report (report.json's text) instead of the paths written",
     )
     add_record_options(p)
@@ -69,8 +77,11 @@ def run(args) -> int:
     cands = [c.strip() for c in args.candidates.split(",") if c.strip()]
     bad = [c for c in cands if c not in EFFECTS]
     if bad or not cands:
-        raise CLIError(f"--candidates: unknown effect {bad[0]!r} (choose from {', '.join(EFFECTS)})"
-                       if bad else "--candidates: give at least one effect")
+        raise CLIError(
+            f"--candidates: unknown effect {bad[0]!r} (choose from {', '.join(EFFECTS)})"
+            if bad
+            else "--candidates: give at least one effect"
+        )
     if args.max_effects < 1:
         raise CLIError(f"--max-effects must be at least 1, got {args.max_effects}")
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
@@ -78,14 +89,22 @@ def run(args) -> int:
     val = read_record(args.validate, args, validation=True) if args.validate else None
     # Refuse unusable records before the (long) search, not after it.
     n = rec.n_samples + (0 if val is None else val.n_samples)
-    memory.require(memory.diagnose_bytes(n), f"{args.data}{' and ' + args.validate if val else ''} "
-                   f"({n} samples)", "diagnose a shorter part of the record (a few periods suffice)")
+    memory.require(
+        memory.diagnose_bytes(n),
+        f"{args.data}{' and ' + args.validate if val else ''} ({n} samples)",
+        "diagnose a shorter part of the record (a few periods suffice)",
+    )
     check_record(rec)
     if val is not None:
         check_record(val)
-    diagnosis = diagnose(rec, val, max_effects=args.max_effects, candidates=cands,
-                         solver=None if args.solver == "none" else args.solver,
-                         quiet=args.quiet or args.json)
+    diagnosis = diagnose(
+        rec,
+        val,
+        max_effects=args.max_effects,
+        candidates=cands,
+        solver=None if args.solver == "none" else args.solver,
+        quiet=args.quiet or args.json,
+    )
     rep = _report(diagnosis, args)
     fig = diagnosis_figure(diagnosis)
     written = [_io.write_json(out / "report.json", rep)]
@@ -129,42 +148,67 @@ def _markdown(d, data):
     v = d.validation
     if v is not None:
         lines.append(f"| RMSE, validation record | {v.baseline_rmse:.4g} | {v.final_rmse:.4g} |")
-        lines.append(f"| RMSE, validation record, mean residual removed | "
-                     f"{v.baseline_rmse_offset_removed:.4g} | {v.final_rmse_offset_removed:.4g} |")
-        lines.append(f"| RMSE, validation record, initial conditions estimated | "
-                     f"{v.baseline_rmse_ic:.4g} | {v.final_rmse_ic:.4g} |")
-        lines.append(f"| fit %, validation record (raw / initial conditions estimated) | "
-                     f"{v.baseline_fit_percent:.1f} / {v.baseline_fit_percent_ic:.1f} | "
-                     f"{v.final_fit_percent:.1f} / {v.final_fit_percent_ic:.1f} |")
+        lines.append(
+            f"| RMSE, validation record, mean residual removed | "
+            f"{v.baseline_rmse_offset_removed:.4g} | {v.final_rmse_offset_removed:.4g} |"
+        )
+        lines.append(
+            f"| RMSE, validation record, initial conditions estimated | "
+            f"{v.baseline_rmse_ic:.4g} | {v.final_rmse_ic:.4g} |"
+        )
+        lines.append(
+            f"| fit %, validation record (raw / initial conditions estimated) | "
+            f"{v.baseline_fit_percent:.1f} / {v.baseline_fit_percent_ic:.1f} | "
+            f"{v.final_fit_percent:.1f} / {v.final_fit_percent_ic:.1f} |"
+        )
     if d.record_specific_effects:
-        lines += ["", "Tied to this record, left out on another: "
-                  + ", ".join(f"`{e}`" for e in d.record_specific_effects)
-                  + ". They explain this record's unrecorded past or its drift over time; another run "
-                  "of the device has its own, so the model used on the validation record and for "
-                  "compensation keeps only the effects driven by the input"
-                  + (": " + ", ".join(f"`{e}`" for e in d.transferable_effects) if d.transferable_effects
-                     else " (none here)") + ".", ""]
+        lines += [
+            "",
+            "Tied to this record, left out on another: "
+            + ", ".join(f"`{e}`" for e in d.record_specific_effects)
+            + ". They explain this record's unrecorded past or its drift over time; another run "
+            "of the device has its own, so the model used on the validation record and for "
+            "compensation keeps only the effects driven by the input"
+            + (": " + ", ".join(f"`{e}`" for e in d.transferable_effects) if d.transferable_effects else " (none here)")
+            + ".",
+            "",
+        ]
     if v is not None:
-        lines += ["", "On the validation record, *raw* runs the model from rest; *initial conditions "
-                  "estimated* fits only the output offset and the plays' and creep modes' initial "
-                  "states to that record (as system identification tools compare a model with data), "
-                  "everything else fixed.", ""]
+        lines += [
+            "",
+            "On the validation record, *raw* runs the model from rest; *initial conditions "
+            "estimated* fits only the output offset and the plays' and creep modes' initial "
+            "states to that record (as system identification tools compare a model with data), "
+            "everything else fixed.",
+            "",
+        ]
     for e, par in d.parameters.items():
         if par:
-            lines.append(f"- `{e}`: " + ", ".join(f"{k} = {x:.4g}" if isinstance(x, float) else f"{k} = {x}"
-                                                    for k, x in par.items()))
+            lines.append(
+                f"- `{e}`: "
+                + ", ".join(f"{k} = {x:.4g}" if isinstance(x, float) else f"{k} = {x}" for k, x in par.items())
+            )
     if d.uncertainty is not None:
         u = d.uncertainty
-        lines += ["", f"Standard errors ({u['method']}, from the final model's Jacobian on {u['samples']} samples):",
-                  "", "| parameter | value | std error | |", "|---|---|---|---|"]
+        lines += [
+            "",
+            f"Standard errors ({u['method']}, from the final model's Jacobian on {u['samples']} samples):",
+            "",
+            "| parameter | value | std error | |",
+            "|---|---|---|---|",
+        ]
         for n, x in u["values"].items():
             se = u["std_errors"][n]
-            lines.append(f"| {n} | {x:.6g} | {'undetermined (rank)' if se is None else f'± {se:.4g}'} | "
-                         f"{'undetermined' if n in u['undetermined'] else ''} |")
+            lines.append(
+                f"| {n} | {x:.6g} | {'undetermined (rank)' if se is None else f'± {se:.4g}'} | "
+                f"{'undetermined' if n in u['undetermined'] else ''} |"
+            )
     lines += ["", "## Rounds (held-out RMSE per candidate; score = penalised gain / noise variance)", ""]
     for i, r in enumerate(d.rounds):
-        lines.append(f"Round {i + 1}: current held-out RMSE {r['current_heldout_rmse']:.4g}; best "
-                     f"`{r['best']}` ({'named' if r['named'] else 'not significant'}).")
+        lines.append(
+            f"Round {i + 1}: current held-out RMSE {r['current_heldout_rmse']:.4g}; best "
+            f"`{r['best']}` ({'named' if r['named'] else 'not significant'})."
+        )
         lines.append("")
         lines.append("| candidate | held-out RMSE | score | significant |")
         lines.append("|---|---|---|---|")
@@ -178,8 +222,7 @@ def _markdown(d, data):
         if w["kind"] == "correlation":
             lines.append(f"- residual correlates with {w['name']}: r = {w['correlation']:.2f}")
         else:
-            lines.append(f"- {w['kind']} {w['name']}: RMS {w['rms']:.3g} = "
-                         f"{w['ratio_to_noise']:.1f}x the noise floor")
+            lines.append(f"- {w['kind']} {w['name']}: RMS {w['rms']:.3g} = {w['ratio_to_noise']:.1f}x the noise floor")
     if not any(w["structured"] for w in d.where):
         lines.append("- nowhere: the residual is at the noise floor")
     return "\n".join(lines) + "\n"

@@ -1,6 +1,5 @@
 """`piest estimate`: the paper's online estimators on a measured record, streamed in chunks."""
 
-
 import numpy as np
 
 from .._estimation.online_figure import online_estimate_figure
@@ -64,16 +63,28 @@ def add_arguments(p):
     src.add_argument("--from-fit", metavar="FIT.json", help="thresholds and initial states of a `piest fit` model")
     src.add_argument("--plays", type=positive_int, default=20, help="uniform thresholds (default 20)")
     p.add_argument("--estimator", choices=ESTIMATORS, default="rls", help="default: rls (the paper's)")
-    p.add_argument("--P0", type=positive_float, default=None,
-                   help="initial gain P0·I, for data scaled to magnitude one (default 1e8)")
-    p.add_argument("--normalisation", choices=("paper", "standard"), default=None,
-                   help="rls: paper (m = 1 + h'h, divide by m^2; default) or standard (m^2 = 1 + h'h)")
+    p.add_argument(
+        "--P0",
+        type=positive_float,
+        default=None,
+        help="initial gain P0·I, for data scaled to magnitude one (default 1e8)",
+    )
+    p.add_argument(
+        "--normalisation",
+        choices=("paper", "standard"),
+        default=None,
+        help="rls: paper (m = 1 + h'h, divide by m^2; default) or standard (m^2 = 1 + h'h)",
+    )
     p.add_argument("--forgetting", type=positive_float, default=None, help="forgetting factor in (0, 1] (default 1)")
     p.add_argument("--gain", type=positive_float, default=None, help="gradient gain (default 1)")
     p.add_argument("--no-offset", action="store_true", help="do not estimate an output offset")
     p.add_argument("--start", type=str, default="auto", help="'auto' (default), or a time in seconds")
-    p.add_argument("--window", type=positive_float, metavar="SECONDS",
-                   help="PE window length (default: a tenth of the estimated part)")
+    p.add_argument(
+        "--window",
+        type=positive_float,
+        metavar="SECONDS",
+        help="PE window length (default: a tenth of the estimated part)",
+    )
     add_record_options(p)
     add_output_options(p, "piest-estimate")
 
@@ -145,12 +156,17 @@ def run(args) -> int:
     from .._estimation.online import estimate_record, settled_start
 
     # Each setting belongs to some estimators; one given to another would be ignored.
-    used = {"P0": ("rls", "forgetting"), "normalisation": ("rls",), "forgetting": ("forgetting",),
-            "gain": ("gradient",)}
+    used = {
+        "P0": ("rls", "forgetting"),
+        "normalisation": ("rls",),
+        "forgetting": ("forgetting",),
+        "gain": ("gradient",),
+    }
     for name, estimators in used.items():
         if getattr(args, name) is not None and args.estimator not in estimators:
-            raise CLIError(f"--{name} is a setting of --estimator {' or '.join(estimators)}, "
-                           f"not of --estimator {args.estimator}")
+            raise CLIError(
+                f"--{name} is a setting of --estimator {' or '.join(estimators)}, not of --estimator {args.estimator}"
+            )
     defaults = {"P0": 1e8, "normalisation": "paper", "forgetting": 1.0, "gain": 1.0}
     for name, value in defaults.items():
         if getattr(args, name) is None:
@@ -181,19 +197,36 @@ def run(args) -> int:
 
     m = len(r) + (not args.no_offset)
     block = min(rec.n_samples, DEFAULT_CHUNK)  # a chunk holds whole windows or part of one
-    memory.require(memory.rls_bytes(m, rec.held) + memory.bank_bytes(block, m),
-                   f"{m} weights ({len(r)} plays) on {args.data}", "use fewer plays")
-    res = estimate_record(est, *rec.source, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset,
-                          window=window, start=k0)
+    memory.require(
+        memory.rls_bytes(m, rec.held) + memory.bank_bytes(block, m),
+        f"{m} weights ({len(r)} plays) on {args.data}",
+        "use fewer plays",
+    )
+    res = estimate_record(
+        est, *rec.source, r, dt=rec.dt, initial_states=x0, offset=not args.no_offset, window=window, start=k0
+    )
     report = dict(
-        data=str(args.data), estimator=args.estimator, settings=settings, offset_estimated=not args.no_offset,
-        start_time=t0 + k0 * rec.dt, start_sample=k0, thresholds=res.thresholds, initial_states=res.initial_states,
-        weights_final=res.weights, offset_final=float(res.offset), final_rmse=res.final_rmse,
-        trajectory=dict(t=t0 + res.t, weights=res.weights_trajectory, offset=res.offset_trajectory,
-                        error_rms=res.error_rms),
-        pe=dict(window_s=(rec.n_samples - k0) // 10 * rec.dt if window is None else window * rec.dt,
-                t=t0 + res.window_t, level=res.pe_levels, exciting=res.exciting,
-                all_exciting=bool(np.all(np.asarray(res.exciting)))),
+        data=str(args.data),
+        estimator=args.estimator,
+        settings=settings,
+        offset_estimated=not args.no_offset,
+        start_time=t0 + k0 * rec.dt,
+        start_sample=k0,
+        thresholds=res.thresholds,
+        initial_states=res.initial_states,
+        weights_final=res.weights,
+        offset_final=float(res.offset),
+        final_rmse=res.final_rmse,
+        trajectory=dict(
+            t=t0 + res.t, weights=res.weights_trajectory, offset=res.offset_trajectory, error_rms=res.error_rms
+        ),
+        pe=dict(
+            window_s=(rec.n_samples - k0) // 10 * rec.dt if window is None else window * rec.dt,
+            t=t0 + res.window_t,
+            level=res.pe_levels,
+            exciting=res.exciting,
+            all_exciting=bool(np.all(np.asarray(res.exciting))),
+        ),
         certificate=dict(t=t0 + res.bound_t, gram_bound=res.gram_bound),
         **record_fields(rec, args),
     )

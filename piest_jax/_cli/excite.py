@@ -36,21 +36,34 @@ NONFINITE = ("time_to_1pct", "time_to_1pct_worst", "margin_ratio")
 
 
 def add_arguments(p):
-    p.add_argument("--thresholds", type=float_list, required=True, metavar="R1,R2,...",
-                   help="play thresholds, >= 0 and strictly increasing")
+    p.add_argument(
+        "--thresholds",
+        type=float_list,
+        required=True,
+        metavar="R1,R2,...",
+        help="play thresholds, >= 0 and strictly increasing",
+    )
     p.add_argument("--samples", type=positive_int, required=True, help="samples of the input")
-    p.add_argument("--amplitude", type=positive_float,
-                   help="limit A on |u|, above the largest threshold (default 2 r_max)")
+    p.add_argument(
+        "--amplitude", type=positive_float, help="limit A on |u|, above the largest threshold (default 2 r_max)"
+    )
     p.add_argument("--dt", type=positive_float, default=1e-3, help="sampling step in s (default 1e-3)")
-    p.add_argument("--frequency", type=positive_float,
-                   help="frequency of the comparison sine, which sets the slew limit 2 pi f A "
-                   "(default: 10 periods over the record)")
-    p.add_argument("--window", type=positive_int,
-                   help="PE window in samples (default samples // 5)")
-    p.add_argument("--weights", type=float_list, metavar="W1,W2,...",
-                   help="true weights for the RLS comparison (default all 1)")
-    p.add_argument("--P0", type=positive_float, default=1e3,
-                   help="RLS initial gain P0 I, for data scaled to magnitude one (default 1e3)")
+    p.add_argument(
+        "--frequency",
+        type=positive_float,
+        help="frequency of the comparison sine, which sets the slew limit 2 pi f A "
+        "(default: 10 periods over the record)",
+    )
+    p.add_argument("--window", type=positive_int, help="PE window in samples (default samples // 5)")
+    p.add_argument(
+        "--weights", type=float_list, metavar="W1,W2,...", help="true weights for the RLS comparison (default all 1)"
+    )
+    p.add_argument(
+        "--P0",
+        type=positive_float,
+        default=1e3,
+        help="RLS initial gain P0 I, for data scaled to magnitude one (default 1e3)",
+    )
     add_output_options(p, "piest-excite")
 
 
@@ -64,15 +77,19 @@ def _settings(args):
     if amplitude <= r[-1]:
         raise CLIError(f"--amplitude ({amplitude:g}) must exceed the largest threshold ({r[-1]:g})")
     if args.window is None and args.samples < 10:
-        raise CLIError(f"--samples {args.samples} is too short for the default window (samples // 5, "
-                       "at least 2): give at least 10, or --window")
+        raise CLIError(
+            f"--samples {args.samples} is too short for the default window (samples // 5, "
+            "at least 2): give at least 10, or --window"
+        )
     window = args.samples // 5 if args.window is None else args.window
     if not 2 <= window <= args.samples:
         raise CLIError(f"--window ({window} samples) must be between 2 and --samples ({args.samples})")
     frequency = 10 / (args.samples * args.dt) if args.frequency is None else args.frequency
     if frequency * args.dt >= 0.5:
-        raise CLIError(f"--frequency {frequency:g} Hz is at or above the Nyquist frequency "
-                       f"{0.5 / args.dt:g} Hz of --dt {args.dt:g}")
+        raise CLIError(
+            f"--frequency {frequency:g} Hz is at or above the Nyquist frequency "
+            f"{0.5 / args.dt:g} Hz of --dt {args.dt:g}"
+        )
     weights = np.ones_like(r) if args.weights is None else np.asarray(args.weights, float)
     if weights.shape != r.shape:
         raise CLIError(f"--weights has {weights.size} values for {r.size} thresholds")
@@ -83,31 +100,47 @@ def _settings(args):
 
 def run(args) -> int:
     r, amplitude, window, frequency, weights = _settings(args)
-    memory.require(memory.rls_bytes(r.size, args.samples) + 2 * memory.bank_bytes(args.samples, r.size),
-                   f"--samples {args.samples} with {r.size} thresholds", "use fewer samples")
+    memory.require(
+        memory.rls_bytes(r.size, args.samples) + 2 * memory.bank_bytes(args.samples, r.size),
+        f"--samples {args.samples} with {r.size} thresholds",
+        "use fewer samples",
+    )
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     slew = 2 * np.pi * frequency * amplitude
     try:
-        design = design_input(r, amplitude=amplitude, n_samples=args.samples, window=window,
-                              dt=args.dt, slew=slew)
+        design = design_input(r, amplitude=amplitude, n_samples=args.samples, window=window, dt=args.dt, slew=slew)
     except ValueError as e:
         raise CLIError(str(e).replace("`window`", "--window").replace("`amplitude`", "--amplitude")) from None
     t = np.arange(args.samples) * args.dt
     inputs = {"design": design.u, "sine": amplitude * np.sin(2 * np.pi * frequency * t)}
-    reports = {k: excitation_report(u, r, weights, dt=args.dt, window=window, P0=args.P0)
-               for k, u in inputs.items()}
-    summary = {k: {key: v for key, v in rep.items() if key not in ("error", "margins", "worst_k", "worst_error")}
-               for k, rep in reports.items()}
+    reports = {k: excitation_report(u, r, weights, dt=args.dt, window=window, P0=args.P0) for k, u in inputs.items()}
+    summary = {
+        k: {key: v for key, v in rep.items() if key not in ("error", "margins", "worst_k", "worst_error")}
+        for k, rep in reports.items()
+    }
     sine_margin = reports["sine"]["margin"]
     report = dict(
-        thresholds=r, amplitude=amplitude, samples=args.samples, dt=args.dt, window=window,
-        frequency=frequency, slew=slew, weights=weights, P0=args.P0,
-        plan=dict(levels=design.levels, pairs_per_period=design.pairs, period=design.period,
-                    shares=design.shares, ideal_margin=design.ideal_margin),
+        thresholds=r,
+        amplitude=amplitude,
+        samples=args.samples,
+        dt=args.dt,
+        window=window,
+        frequency=frequency,
+        slew=slew,
+        weights=weights,
+        P0=args.P0,
+        plan=dict(
+            levels=design.levels,
+            pairs_per_period=design.pairs,
+            period=design.period,
+            shares=design.shares,
+            ideal_margin=design.ideal_margin,
+        ),
         **summary,
         # inf when only the design is PE in every window; NaN when neither is.
-        margin_ratio=np.divide(reports["design"]["margin"], sine_margin) if sine_margin > 0 else (
-            np.inf if reports["design"]["margin"] > 0 else np.nan),
+        margin_ratio=np.divide(reports["design"]["margin"], sine_margin)
+        if sine_margin > 0
+        else (np.inf if reports["design"]["margin"] > 0 else np.nan),
     )
     written = [_io.write_csv(out / "excite.csv", {"t": t, "u": design.u})]
     written.append(_io.write_json(out / "excite.json", report))

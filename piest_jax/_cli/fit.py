@@ -131,17 +131,25 @@ lags_list = _counts("lag counts", "lag count", "1,2,3")
 def add_arguments(p):
     p.add_argument("data", metavar="DATA.csv", help="the identification record (t, u, y)")
     p.add_argument(
-        "--model", choices=MODELS, default="auto",
+        "--model",
+        choices=MODELS,
+        default="auto",
         help="auto (default): choose pi or pi+creep by held-out error; pi: plays only; "
         "pi+creep: plays and a creep of first-order lags; gpi: plays, then a saturating "
         "output function (needs --plays N); preisach: a discrete Preisach model",
     )
     p.add_argument(
-        "--lags", type=lags_list, default=None, metavar="K[,K...]",
+        "--lags",
+        type=lags_list,
+        default=None,
+        metavar="K[,K...]",
         help="creep lag counts tried (default 1,2,3); one number fixes it",
     )
     p.add_argument(
-        "--time-constants", type=float_list, default=None, metavar="T1[,T2...]",
+        "--time-constants",
+        type=float_list,
+        default=None,
+        metavar="T1[,T2...]",
         help="starting creep time constants (time units of t; fixes the lag count); each must "
         "lie between the sampling interval and 100 times the record's duration",
     )
@@ -162,8 +170,12 @@ def add_arguments(p):
         default=None,
         help="numbers of plays tried by --plays auto (default 1,2,3,4,5,6,8,10)",
     )
-    p.add_argument("--criterion", choices=CRITERIA, default=None,
-                   help="how --plays auto chooses: holdout (default) or bic (with --model pi)")
+    p.add_argument(
+        "--criterion",
+        choices=CRITERIA,
+        default=None,
+        help="how --plays auto chooses: holdout (default) or bic (with --model pi)",
+    )
     p.add_argument(
         "--initial-states",
         type=finite_float,
@@ -171,13 +183,9 @@ def add_arguments(p):
         metavar="X",
         help="the plays' state before each record (default: each record's first input)",
     )
-    p.add_argument(
-        "--fit-initial-states", action="store_true", help="fit the initial states as well"
-    )
+    p.add_argument("--fit-initial-states", action="store_true", help="fit the initial states as well")
     p.add_argument("--signed-weights", action="store_true", help="allow negative weights")
-    p.add_argument(
-        "--max-threshold", type=positive_float, help="upper bound on every threshold (u units)"
-    )
+    p.add_argument("--max-threshold", type=positive_float, help="upper bound on every threshold (u units)")
     p.add_argument("--max-steps", type=positive_int, default=100, help="solver steps (default 100)")
     p.add_argument(
         "--fit-from",
@@ -191,11 +199,30 @@ def add_arguments(p):
 
 
 # `identify` names its options as `name` in its messages; here they read as the options typed.
-_OPTIONS = {"signed weights (`positive_weights` False)": "--signed-weights",
-            **{f"`{name}`": "--" + name.replace("_", "-") for name in (
-                "candidates", "criterion", "fit_from", "fit_initial_states", "initial_states", "lags",
-                "model", "plays", "time_constants", "terms", "grid", "smoothness", "solver", "starts",
-                "max_threshold", "max_steps")}}
+_OPTIONS = {
+    "signed weights (`positive_weights` False)": "--signed-weights",
+    **{
+        f"`{name}`": "--" + name.replace("_", "-")
+        for name in (
+            "candidates",
+            "criterion",
+            "fit_from",
+            "fit_initial_states",
+            "initial_states",
+            "lags",
+            "model",
+            "plays",
+            "time_constants",
+            "terms",
+            "grid",
+            "smoothness",
+            "solver",
+            "starts",
+            "max_threshold",
+            "max_steps",
+        )
+    },
+}
 
 
 def _as_options(e: ValueError) -> CLIError:
@@ -208,12 +235,26 @@ def _as_options(e: ValueError) -> CLIError:
 def run(args) -> int:
     import jax
 
-    options = dict(model=args.model, plays=args.plays, lags=args.lags, time_constants=args.time_constants,
-                   candidates=args.candidates, criterion=args.criterion, initial_states=args.initial_states,
-                   fit_initial_states=args.fit_initial_states)
-    others = dict(terms=args.terms, grid=args.grid, smoothness=args.smoothness, solver=args.solver,
-                  starts=args.starts, positive_weights=not args.signed_weights,
-                  max_threshold=args.max_threshold, max_steps=args.max_steps)
+    options = dict(
+        model=args.model,
+        plays=args.plays,
+        lags=args.lags,
+        time_constants=args.time_constants,
+        candidates=args.candidates,
+        criterion=args.criterion,
+        initial_states=args.initial_states,
+        fit_initial_states=args.fit_initial_states,
+    )
+    others = dict(
+        terms=args.terms,
+        grid=args.grid,
+        smoothness=args.smoothness,
+        solver=args.solver,
+        starts=args.starts,
+        positive_weights=not args.signed_weights,
+        max_threshold=args.max_threshold,
+        max_steps=args.max_steps,
+    )
     try:
         check_options(**options, **others)
     except ValueError as e:
@@ -238,43 +279,70 @@ def run(args) -> int:
     except ValueError as e:
         raise _as_options(e) from None
     memory.require(
-        memory.fit_bytes(rec.n_samples, args.starts, p.n_parameters,
-                         chunked_past=LONG_RECORD if args.solver == "lm" else None),
+        memory.fit_bytes(
+            rec.n_samples, args.starts, p.n_parameters, chunked_past=LONG_RECORD if args.solver == "lm" else None
+        ),
         f"--starts {args.starts} on {args.data} ({rec.n_samples} samples, up to {p.n_parameters} parameters)",
         "use fewer --starts, fewer plays or a shorter record",
     )
     result = identify(
-        rec, val, **options, fit_from=args.fit_from, solver=args.solver, key=jax.random.key(args.seed),
-        starts=args.starts, positive_weights=not args.signed_weights, max_threshold=args.max_threshold,
-        max_steps=args.max_steps, quiet=args.quiet,
+        rec,
+        val,
+        **options,
+        fit_from=args.fit_from,
+        solver=args.solver,
+        key=jax.random.key(args.seed),
+        starts=args.starts,
+        positive_weights=not args.signed_weights,
+        max_threshold=args.max_threshold,
+        max_steps=args.max_steps,
+        quiet=args.quiet,
     )
     f = result.fit
     table = parameter_table(f)
-    written = [_io.write_json(out / "fit.json", {**result.to_json(), **record_fields(rec, args)}),
-               _io.write_text(out / "fit.md", _markdown(result, table)),
-               _io.save_figure(fit_figure(rec, np.asarray(f(rec.u)), title="fit", mask=result.mask,
-                                          band=prediction_band(f, rec.u).interval()),
-                               out / "fit.png", dpi=110)]
+    written = [
+        _io.write_json(out / "fit.json", {**result.to_json(), **record_fields(rec, args)}),
+        _io.write_text(out / "fit.md", _markdown(result, table)),
+        _io.save_figure(
+            fit_figure(
+                rec, np.asarray(f(rec.u)), title="fit", mask=result.mask, band=prediction_band(f, rec.u).interval()
+            ),
+            out / "fit.png",
+            dpi=110,
+        ),
+    ]
     v = result.validation
     if v is not None:
         band = None if v.raw_band is None else v.raw_band.interval()
-        written.append(_io.save_figure(fit_figure(val, np.asarray(v.raw.prediction), title="validation",
-                                                  band=band),
-                                       out / "validation.png", dpi=110))
+        written.append(
+            _io.save_figure(
+                fit_figure(val, np.asarray(v.raw.prediction), title="validation", band=band),
+                out / "validation.png",
+                dpi=110,
+            )
+        )
     print(table, end="", file=sys.stderr)
     if f.undetermined_names:
-        print(f"piest fit: warning: the record does not determine {', '.join(f.undetermined_names)} "
-              "(standard error beyond half the parameter's scale, or free in the Jacobian's rank); "
-              "predictions that depend on them are arbitrary: try fewer plays or lags",
-              file=sys.stderr)
+        print(
+            f"piest fit: warning: the record does not determine {', '.join(f.undetermined_names)} "
+            "(standard error beyond half the parameter's scale, or free in the Jacobian's rank); "
+            "predictions that depend on them are arbitrary: try fewer plays or lags",
+            file=sys.stderr,
+        )
     elif np.any(np.asarray(f.flagged)):
         idx = [int(i) + 1 for i in np.flatnonzero(np.asarray(f.flagged))]
-        print(f"piest fit: note: plays {idx} are not excited by the input; their thresholds are "
-              "not determined by the data", file=sys.stderr)
+        print(
+            f"piest fit: note: plays {idx} are not excited by the input; their thresholds are "
+            "not determined by the data",
+            file=sys.stderr,
+        )
     if result.validation is not None and not result.validation.starts_at_rest:
-        print(f"piest fit: note: {args.validate} does not start at rest, so the raw "
-              "validation_rmse depends on the unknown states it starts from; "
-              "validation_rmse_ic estimates them", file=sys.stderr)
+        print(
+            f"piest fit: note: {args.validate} does not start at rest, so the raw "
+            "validation_rmse depends on the unknown states it starts from; "
+            "validation_rmse_ic estimates them",
+            file=sys.stderr,
+        )
     for path in written:
         print(path)
     return 0
@@ -282,9 +350,14 @@ def run(args) -> int:
 
 def _markdown(result, table) -> str:
     f = result.fit
-    lines = [f"# piest fit: {result.record.source}", "",
-             f"{f.model().structure}, {f.n_plays} plays, {f.n_lags} lags; RMSE {float(f.rmse):.4g}; "
-             f"standard errors: {f.covariance_method}.", "", table]
+    lines = [
+        f"# piest fit: {result.record.source}",
+        "",
+        f"{f.model().structure}, {f.n_plays} plays, {f.n_lags} lags; RMSE {float(f.rmse):.4g}; "
+        f"standard errors: {f.covariance_method}.",
+        "",
+        table,
+    ]
     if f.undetermined_names:
         lines += [f"Undetermined by the record: {', '.join(f.undetermined_names)}.", ""]
     return "\n".join(lines)

@@ -20,9 +20,11 @@ from ._common import CLIError, positive_int, record_fields
 TERMS, GRID = identify_saturating.TERMS, identify_saturating.GRID
 
 
-_REMEDY = {"gpi": "try fewer plays or terms, or a record that reaches further into saturation",
-           "preisach": "the input never switches those relays apart; try a coarser --grid, or a "
-                       "record that covers the input range with reversals of every size"}
+_REMEDY = {
+    "gpi": "try fewer plays or terms, or a record that reaches further into saturation",
+    "preisach": "the input never switches those relays apart; try a coarser --grid, or a "
+    "record that covers the input range with reversals of every size",
+}
 
 
 def grid_arg(text: str) -> tuple[int, int]:
@@ -37,14 +39,27 @@ def grid_arg(text: str) -> tuple[int, int]:
 
 def add_arguments(p) -> None:
     """The options of these models (the others are the PI path's, shared where they apply)."""
-    p.add_argument("--terms", type=positive_int, default=None, metavar="K",
-                   help=f"--model gpi: tanh terms of the output function (default {TERMS})")
-    p.add_argument("--grid", type=grid_arg, default=None, metavar="K,M",
-                   help=f"--model preisach: half-widths and centres of the relay grid "
-                   f"(default {GRID[0]},{GRID[1]})")
-    p.add_argument("--smoothness", type=float, default=None, metavar="S",
-                   help="--model preisach: the density's smoothness penalty (default: chosen "
-                   "on held-out blocks of the record)")
+    p.add_argument(
+        "--terms",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help=f"--model gpi: tanh terms of the output function (default {TERMS})",
+    )
+    p.add_argument(
+        "--grid",
+        type=grid_arg,
+        default=None,
+        metavar="K,M",
+        help=f"--model preisach: half-widths and centres of the relay grid (default {GRID[0]},{GRID[1]})",
+    )
+    p.add_argument(
+        "--smoothness",
+        type=float,
+        default=None,
+        metavar="S",
+        help="--model preisach: the density's smoothness penalty (default: chosen on held-out blocks of the record)",
+    )
 
 
 def run(args, rec, val, out, options: dict) -> int:
@@ -59,31 +74,44 @@ def run(args, rec, val, out, options: dict) -> int:
         n_params = 2 * args.plays + 3 * terms
         memory.require(
             memory.fit_bytes(rec.n_samples, args.starts, n_params),
-            f"--starts {args.starts} on {args.data} ({rec.n_samples} samples, {n_params} "
-            "parameters)", "use fewer --starts, fewer plays or a shorter record")
+            f"--starts {args.starts} on {args.data} ({rec.n_samples} samples, {n_params} parameters)",
+            "use fewer --starts, fewer plays or a shorter record",
+        )
     try:
         result = identify(rec, val, **options, fit_from=args.fit_from, key=jax.random.key(args.seed))
     except ValueError as e:
         raise CLIError(f"{args.data}: {' '.join(str(e).split())}") from None
     report = {**result.to_json(), **record_fields(rec, args)}
     table = "" if result.fit.std_errors is None else parameter_table(result.fit)
-    written = [_io.write_json(out / "fit.json", report),
-               _io.write_text(out / "fit.md", _markdown(args, report, table)),
-               _io.save_figure(fit_figure(rec, np.asarray(result.fit.model(rec.u)), title="fit",
-                                          mask=result.mask, band=_band(result.fit, rec.u)),
-                               out / "fit.png", dpi=110)]
+    written = [
+        _io.write_json(out / "fit.json", report),
+        _io.write_text(out / "fit.md", _markdown(args, report, table)),
+        _io.save_figure(
+            fit_figure(
+                rec, np.asarray(result.fit.model(rec.u)), title="fit", mask=result.mask, band=_band(result.fit, rec.u)
+            ),
+            out / "fit.png",
+            dpi=110,
+        ),
+    ]
     v = result.validation
     if v is not None:
         band = None if v.raw_band is None else v.raw_band.interval()
-        written.append(_io.save_figure(fit_figure(val, np.asarray(v.raw.prediction),
-                                                  title="validation", band=band),
-                                       out / "validation.png", dpi=110))
+        written.append(
+            _io.save_figure(
+                fit_figure(val, np.asarray(v.raw.prediction), title="validation", band=band),
+                out / "validation.png",
+                dpi=110,
+            )
+        )
     undetermined = report.get("undetermined") or []
     if undetermined:
-        print(f"piest fit: warning: the record does not determine {', '.join(undetermined)} "
-              "(standard error beyond half the parameter's scale, or free in the Jacobian's "
-              f"rank); predictions that depend on them are arbitrary: {_REMEDY[args.model]}",
-              file=sys.stderr)
+        print(
+            f"piest fit: warning: the record does not determine {', '.join(undetermined)} "
+            "(standard error beyond half the parameter's scale, or free in the Jacobian's "
+            f"rank); predictions that depend on them are arbitrary: {_REMEDY[args.model]}",
+            file=sys.stderr,
+        )
     for p in written:
         print(p)
     return 0
@@ -100,29 +128,42 @@ def _markdown(args, report, table="") -> str:
     lines = [f"# piest fit: {args.data}", ""]
     if args.model == "gpi":
         g = report["output_function"]
-        lines += [f"gpi, {report['n_plays']} plays, {len(g['amplitudes'])} tanh terms; RMSE "
-                  f"{report['rmse']:.4g}.", "",
-                  "y = offset + sum_k a_k tanh((v - c_k)/s_k), v = sum_j w_j H_{r_j}[u]", "",
-                  "| play | threshold | weight |", "|---|---|---|"]
-        lines += [f"| {j + 1} | {r:.6g} | {w:.6g} |"
-                  for j, (r, w) in enumerate(zip(report["thresholds"], report["weights"]))]
+        lines += [
+            f"gpi, {report['n_plays']} plays, {len(g['amplitudes'])} tanh terms; RMSE {report['rmse']:.4g}.",
+            "",
+            "y = offset + sum_k a_k tanh((v - c_k)/s_k), v = sum_j w_j H_{r_j}[u]",
+            "",
+            "| play | threshold | weight |",
+            "|---|---|---|",
+        ]
+        lines += [
+            f"| {j + 1} | {r:.6g} | {w:.6g} |" for j, (r, w) in enumerate(zip(report["thresholds"], report["weights"]))
+        ]
         lines += ["", "| term | amplitude | centre | scale |", "|---|---|---|---|"]
-        lines += [f"| {k + 1} | {a:.6g} | {c:.6g} | {s:.6g} |"
-                  for k, (a, c, s) in enumerate(zip(g["amplitudes"], g["centres"], g["scales"]))]
+        lines += [
+            f"| {k + 1} | {a:.6g} | {c:.6g} | {s:.6g} |"
+            for k, (a, c, s) in enumerate(zip(g["amplitudes"], g["centres"], g["scales"]))
+        ]
         if table:
             method = report["covariance"]["method"]
             lines += ["", f"Standard errors ({method}):", "", table.rstrip("\n")]
     else:
         K, M = report["grid"]
-        lines += [f"preisach, {K} x {M} grid ({'non-negative' if report['model']['monotone'] else 'signed'}"
-                  f" density), smoothness {report['smoothness']:.3g}; RMSE {report['rmse']:.4g}.",
-                  "", "The density is in fit.json (`density`, half-widths by centres)."]
+        lines += [
+            f"preisach, {K} x {M} grid ({'non-negative' if report['model']['monotone'] else 'signed'}"
+            f" density), smoothness {report['smoothness']:.3g}; RMSE {report['rmse']:.4g}.",
+            "",
+            "The density is in fit.json (`density`, half-widths by centres).",
+        ]
         if "std_errors" in report:
             bad = report["undetermined"]
-            lines += ["", f"Its standard errors ({report['covariance']['method']}, at this "
-                      "smoothness) are in fit.json (`std_errors`, `covariance`); "
-                      f"{len(bad)} of its {len(report['std_errors'])} parameters are not "
-                      "determined by the record" + (f": {', '.join(bad)}." if bad else ".")]
+            lines += [
+                "",
+                f"Its standard errors ({report['covariance']['method']}, at this "
+                "smoothness) are in fit.json (`std_errors`, `covariance`); "
+                f"{len(bad)} of its {len(report['std_errors'])} parameters are not "
+                "determined by the record" + (f": {', '.join(bad)}." if bad else "."),
+            ]
     lines += ["", f"offset {float(report['offset']):.6g}", ""]
     print("\n".join(lines[2:]), file=sys.stderr)
     return "\n".join(lines)

@@ -44,8 +44,9 @@ def require(nbytes: float, what: str, advice: str) -> None:
     """
     avail = available_bytes()
     if avail is not None and nbytes > avail:
-        raise CLIError(f"{what} needs about {_size(nbytes)} of memory, more than the {_size(avail)} "
-                       f"available; {advice}")
+        raise CLIError(
+            f"{what} needs about {_size(nbytes)} of memory, more than the {_size(avail)} available; {advice}"
+        )
 
 
 def fit_bytes(n_samples: int, n_starts: int, n_params: int, *, chunked_past: int | None = None) -> float:

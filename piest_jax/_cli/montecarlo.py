@@ -12,15 +12,20 @@ from . import output as _io
 from ._common import CLIError, add_output_options, positive_float, positive_int, seed
 
 NAME = "montecarlo"
-DESCRIPTION = """\
+DESCRIPTION = (
+    """\
 Draw N random cases (input family and parameters, thresholds, initial states, weights), one PRNG
 key each, and for every draw compute the Assumption 1 ratio rho (smallest window range of u over
 2 r_max), the PE level c1 (absolute, and normalised as lambda_min / lambda_max of the worst
 window), which plays move in each window, the exact condition and the lower bound on c1 from
 the input's swings (see docs/excitation_condition.md), the earlier sharper condition, the RLS
 weight error after the whole record, when it falls below 1 % for good, and when the lower bound
-guarantees that it has. The families take turns: """ + ", ".join(DEFAULT_FAMILIES) + """ by default;
-""" + ", ".join(FAMILIES[len(DEFAULT_FAMILIES):]) + """ (long monotone stretches, reversals
+guarantees that it has. The families take turns: """
+    + ", ".join(DEFAULT_FAMILIES)
+    + """ by default;
+"""
+    + ", ".join(FAMILIES[len(DEFAULT_FAMILIES) :])
+    + """ (long monotone stretches, reversals
 exactly 2 r_j apart with holds, loops just below 2 r_max) are adversarial cases asked for by name.
 Writes
   DIR/pe_map.png   c1 against rho by family (rho = 1 marked), the PE fraction against rho,
@@ -32,32 +37,26 @@ Writes
 The batch is sharded over all JAX devices and run in chunks of --chunk draws.
 
 example:  piest montecarlo --inputs 2000 --samples 5000 --seed 0 --out pe-map"""
+)
 
 OUTPUTS = ("pe_map.png", "pe_map.json")
 
 
 def add_arguments(p):
     p.add_argument("--inputs", type=positive_int, default=700, help="number of draws (default 700)")
-    p.add_argument(
-        "--samples", type=positive_int, default=5000, help="samples per input T (default 5000)"
-    )
+    p.add_argument("--samples", type=positive_int, default=5000, help="samples per input T (default 5000)")
     p.add_argument("--seed", type=seed, default=0, help="PRNG seed (default 0)")
     p.add_argument("--plays", type=positive_int, default=10, help="plays per draw (default 10)")
-    p.add_argument(
-        "--window", type=positive_int, help="PE window T0 in samples (default samples // 5)"
-    )
-    p.add_argument(
-        "--stride", type=positive_int, help="samples between window starts (default window // 10)"
-    )
+    p.add_argument("--window", type=positive_int, help="PE window T0 in samples (default samples // 5)")
+    p.add_argument("--stride", type=positive_int, help="samples between window starts (default window // 10)")
     p.add_argument("--dt", type=positive_float, default=2e-3, help="sampling step (default 2e-3)")
-    p.add_argument(
-        "--p0", type=positive_float, default=1e6, help="RLS initial gain P0 (default 1e6)"
-    )
+    p.add_argument("--p0", type=positive_float, default=1e6, help="RLS initial gain P0 (default 1e6)")
     p.add_argument(
         "--families",
         default=",".join(DEFAULT_FAMILIES),
         help="comma-separated input families (default: the seven non-adversarial ones; also "
-        + ", ".join(FAMILIES[len(DEFAULT_FAMILIES):]) + ")",
+        + ", ".join(FAMILIES[len(DEFAULT_FAMILIES) :])
+        + ")",
     )
     p.add_argument(
         "--float32",
@@ -65,9 +64,7 @@ def add_arguments(p):
         help="compute in float32 (faster, but its tolerance 1.2e-3 on lambda_min / lambda_max is "
         "above the PE level of most draws, which is 1e-10 to 1e-5 with 10 plays)",
     )
-    p.add_argument(
-        "--chunk", type=positive_int, default=1000, help="draws per compiled call (default 1000)"
-    )
+    p.add_argument("--chunk", type=positive_int, default=1000, help="draws per compiled call (default 1000)")
     p.add_argument(
         "--settle",
         action="store_true",
@@ -90,16 +87,15 @@ def run(args) -> int:
     if args.samples < 2:
         raise CLIError(f"--samples must be at least 2, got {args.samples}")
     if args.window is not None and args.window > args.samples:
-        raise CLIError(
-            f"--window ({args.window} samples) is longer than the signal ({args.samples} samples)"
-        )
+        raise CLIError(f"--window ({args.window} samples) is longer than the signal ({args.samples} samples)")
     families = [f for f in args.families.replace(" ", "").split(",") if f]
     unknown = [f for f in families if f not in FAMILIES]
     if unknown or not families:
         raise CLIError(f"unknown --families {unknown or families}; choose from {list(FAMILIES)}")
     memory.require(
         memory.map_bytes(args.samples, args.plays, len(families)),
-        f"--samples {args.samples} with --plays {args.plays}", "use fewer samples or plays",
+        f"--samples {args.samples} with --plays {args.plays}",
+        "use fewer samples or plays",
     )
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     settings = make_settings(
@@ -114,7 +110,11 @@ def run(args) -> int:
         play_method=args.play_method,
     )
     res = pe_map(
-        jax.random.key(args.seed), args.inputs, settings, chunk=args.chunk, settle=args.settle,
+        jax.random.key(args.seed),
+        args.inputs,
+        settings,
+        chunk=args.chunk,
+        settle=args.settle,
         quiet=args.quiet,
     )
     summary = summarise(res, settings)
@@ -129,9 +129,22 @@ def run(args) -> int:
     report["draws"] = {
         k: res[k]
         for k in (
-            "family", "rho", "c1", "c1_normalised", "pe", "min_excited", "redundant", "sharper", "exact",
-            "exact_level", "margin", "samples_to_1pct", "worst_samples_to_1pct",
-            "guaranteed_samples_to_1pct", "worst_error", "guaranteed_error",
+            "family",
+            "rho",
+            "c1",
+            "c1_normalised",
+            "pe",
+            "min_excited",
+            "redundant",
+            "sharper",
+            "exact",
+            "exact_level",
+            "margin",
+            "samples_to_1pct",
+            "worst_samples_to_1pct",
+            "guaranteed_samples_to_1pct",
+            "worst_error",
+            "guaranteed_error",
         )
     } | {"weight_error": res["weight_error"], "thresholds": res["thresholds"]}
     if args.settle:

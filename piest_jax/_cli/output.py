@@ -278,8 +278,10 @@ def write_csv(path, columns: dict) -> Path:
     if tx is not None:
         bad = ~np.isfinite(data)
         # The first non-finite value of each column, as (column, row) locations.
-        first = [((names[j], int(np.argmax(bad[:, j]))), float(data[np.argmax(bad[:, j]), j]))
-                 for j in np.flatnonzero(bad.any(axis=0))]
+        first = [
+            ((names[j], int(np.argmax(bad[:, j]))), float(data[np.argmax(bad[:, j]), j]))
+            for j in np.flatnonzero(bad.any(axis=0))
+        ]
         check_finite(path.name, first, tx.nonfinite)
 
     def write(f):
@@ -309,7 +311,7 @@ def _remove_debris(out: Path, names) -> None:
     now = time.time()
     for name in names:
         for p in out.glob(f".{name}.*{_TMP_SUFFIX}"):
-            parts = p.name[len(name) + 2:].split(".")
+            parts = p.name[len(name) + 2 :].split(".")
             if not (len(parts) == 3 and parts[0].isdigit()):
                 continue
             try:
@@ -356,9 +358,7 @@ def check_outputs(out_dir, names, force: bool) -> Path:
     if not force:
         for name in names + others:
             if (out / name).exists():
-                raise FileExistsError(
-                    f"{out / name} already exists; pass --force to overwrite it"
-                )
+                raise FileExistsError(f"{out / name} already exists; pass --force to overwrite it")
     missing = [p for p in (out, *out.parents) if not p.exists()]
     try:
         out.mkdir(parents=True, exist_ok=True)

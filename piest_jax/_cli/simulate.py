@@ -46,9 +46,7 @@ def add_arguments(p):
     p.add_argument(
         "--amplitude", type=float_list, default=None, help="amplitude(s); several for multisine (default 10)"
     )
-    p.add_argument(
-        "--frequency", type=float_list, default=None, help="frequency/ies in Hz (default 5)"
-    )
+    p.add_argument("--frequency", type=float_list, default=None, help="frequency/ies in Hz (default 5)")
     p.add_argument("--offset", type=finite_float, default=None, help="constant added to the input (default 0)")
     p.add_argument("--duration", type=positive_float, default=None, help="seconds (default 1)")
     p.add_argument("--dt", type=positive_float, default=None, help="sampling step (default 1e-3)")
@@ -58,9 +56,7 @@ def add_arguments(p):
         default=None,
         help="comma-separated thresholds, increasing from 0 (default 0,3.3333,6.6667)",
     )
-    p.add_argument(
-        "--plays", type=positive_int, help="instead of --thresholds: N thresholds uniform on [0, r_max)"
-    )
+    p.add_argument("--plays", type=positive_int, help="instead of --thresholds: N thresholds uniform on [0, r_max)")
     p.add_argument("--r-max", type=positive_float, help="largest threshold scale with --plays")
     p.add_argument("--weights", type=float_list, help="comma-separated weights (default 1,3,5)")
     p.add_argument(
@@ -83,12 +79,15 @@ def _input(args):
             raise CLIError("--input csv needs --csv FILE")
         for name in SHAPE_DEFAULTS:
             if getattr(args, name) is not None:
-                raise CLIError(f"--{name} describes a generated input; --input csv takes t and u "
-                               f"from {args.csv}")
+                raise CLIError(f"--{name} describes a generated input; --input csv takes t and u from {args.csv}")
         rec = read_record(args.csv, args)
         return rec.t, rec.u, {"kind": "csv", "file": str(args.csv), **record_fields(rec, args)}
-    for given, name in ((args.csv, "--csv"), (args.columns, "--columns"), (args.resample, "--resample"),
-                        (args.segment is not None, "--segment")):
+    for given, name in (
+        (args.csv, "--csv"),
+        (args.columns, "--columns"),
+        (args.resample, "--resample"),
+        (args.segment is not None, "--segment"),
+    ):
         if given:
             raise CLIError(f"{name} is only used with --input csv, not --input {args.input}")
     for name, value in SHAPE_DEFAULTS.items():
@@ -131,9 +130,11 @@ def _check_frequencies(freqs, dt) -> None:
             zero = " (0 Hz gives a constant input; --offset sets one)" if f == 0 else ""
             raise CLIError(f"--frequency {f:g} Hz: a frequency must be positive{zero}")
         if f >= nyquist:
-            raise CLIError(f"--frequency {f:g} Hz is at or above the Nyquist frequency {nyquist:g} Hz "
-                           f"of --dt {dt:g}: the samples would show an alias, or nothing at all; "
-                           "lower --frequency or --dt")
+            raise CLIError(
+                f"--frequency {f:g} Hz is at or above the Nyquist frequency {nyquist:g} Hz "
+                f"of --dt {dt:g}: the samples would show an alias, or nothing at all; "
+                "lower --frequency or --dt"
+            )
 
 
 def _operator(args):
@@ -168,8 +169,9 @@ def run(args) -> int:
             f"{len(t)} samples x {op.n_plays} plays is more than the {MAX_VALUES:.0e} values "
             "simulate.csv may hold; use fewer plays or samples"
         )
-    memory.require(memory.bank_bytes(len(t), op.n_plays), f"{len(t)} samples x {op.n_plays} plays",
-                   "use fewer plays or samples")
+    memory.require(
+        memory.bank_bytes(len(t), op.n_plays), f"{len(t)} samples x {op.n_plays} plays", "use fewer plays or samples"
+    )
     H = np.asarray(op.regressor(u))
     y = np.asarray(op(u))
     for name, v in (("input u", u), ("output y", y), ("play outputs", H)):

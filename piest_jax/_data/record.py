@@ -53,9 +53,7 @@ class Record:
             cols.append((SEGMENT, self.segment))
         for name, col in cols:
             if np.shape(col) != (n,):
-                raise DataError(
-                    f"{self.source}: column `{name}` has shape {np.shape(col)}, expected ({n},)"
-                )
+                raise DataError(f"{self.source}: column `{name}` has shape {np.shape(col)}, expected ({n},)")
 
     @property
     def n_segments(self) -> int:
@@ -172,8 +170,16 @@ class Record:
         seg = cols.pop(SEGMENT, None)
         # A column of the frame named t, u or y that was not chosen would shadow the chosen one.
         extras = {k: v for k, v in cols.items() if k not in ("t", "u", "y")}
-        return cls.from_arrays(t, u, y, extras=extras, source=source, segment=seg,
-                               time_is_index=time is None or time in INDEX_NAMES, **kwargs)
+        return cls.from_arrays(
+            t,
+            u,
+            y,
+            extras=extras,
+            source=source,
+            segment=seg,
+            time_is_index=time is None or time in INDEX_NAMES,
+            **kwargs,
+        )
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Record":
         """The samples `start:stop` as a new record (time stamps kept)."""
@@ -217,9 +223,12 @@ def _segment_bounds(segment, source, rows=None):
     for a, _ in bounds:
         label = segment[a]
         if label in seen:
-            _fail(source, f"segment {label:g} starts again after other segments (it began at "
-                  f"{_where(seen[label], rows)}); the rows of one segment must be together",
-                  rows[a] if rows is not None else None)
+            _fail(
+                source,
+                f"segment {label:g} starts again after other segments (it began at "
+                f"{_where(seen[label], rows)}); the rows of one segment must be together",
+                rows[a] if rows is not None else None,
+            )
         seen[label] = a
     return bounds
 
@@ -285,11 +294,7 @@ def _parse_rows(lines, start, delim, names, source, *, trailing=False):
     # Line numbers (from 1) of the data rows, as one integer array: a long record costs 8 bytes a
     # row here, not a Python object per row.
     rows = np.fromiter(
-        (
-            i + 1
-            for i in range(start, len(lines))
-            if lines[i].strip() and not lines[i].lstrip().startswith("#")
-        ),
+        (i + 1 for i in range(start, len(lines)) if lines[i].strip() and not lines[i].lstrip().startswith("#")),
         dtype=np.int64,
     )
     if rows.size == 0:
@@ -337,9 +342,19 @@ def _record(t, u, y, extras, source, rows, segment, time_is_index, **opts):
     for a, b in bounds:
         label = f"segment {segment[a]:g}"
         cut = lambda c: c[a:b]  # noqa: E731
-        parts.append(_validate(cut(t), cut(u), cut(y), {k: cut(v) for k, v in extras.items()},
-                               source, None if rows is None else rows[a:b], step=step,
-                               part=f"{label} ({_where(a, rows)})", **opts))
+        parts.append(
+            _validate(
+                cut(t),
+                cut(u),
+                cut(y),
+                {k: cut(v) for k, v in extras.items()},
+                source,
+                None if rows is None else rows[a:b],
+                step=step,
+                part=f"{label} ({_where(a, rows)})",
+                **opts,
+            )
+        )
         parts[-1] = (*parts[-1], np.full(len(parts[-1][0]), segment[a]))
     t, u, y, seg = (np.concatenate([p[i] for p in parts]) for i in (0, 1, 2, 4))
     extras = {k: np.concatenate([p[3][k] for p in parts]) for k in extras}
@@ -504,8 +519,15 @@ def _stream_rows(path, h, delim, ncol, trailing):
     if not plain or n == 0:
         return None
     try:
-        data = np.loadtxt(path, delimiter=delim, skiprows=h + 1, ndmin=2, encoding="utf-8-sig",
-                          usecols=range(ncol) if trailing else None, comments=None)
+        data = np.loadtxt(
+            path,
+            delimiter=delim,
+            skiprows=h + 1,
+            ndmin=2,
+            encoding="utf-8-sig",
+            usecols=range(ncol) if trailing else None,
+            comments=None,
+        )
     except (ValueError, UnicodeDecodeError):
         return None
     if data.shape != (n, ncol):

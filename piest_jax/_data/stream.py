@@ -50,8 +50,9 @@ class RecordStream:
             for _ in range(self._skip):
                 next(f, None)
             while lines := list(itertools.islice(f, size)):
-                data = np.loadtxt(lines, delimiter=self._delim, ndmin=2, comments=None, dtype=np.float64,
-                                  usecols=self._cols)
+                data = np.loadtxt(
+                    lines, delimiter=self._delim, ndmin=2, comments=None, dtype=np.float64, usecols=self._cols
+                )
                 yield data
 
     def chunks(self, size: int = CHUNK_ROWS):
@@ -125,5 +126,13 @@ def open_record_stream(path, *, columns=None, dt_tolerance: float = 1e-3) -> Rec
     if n < MIN_SAMPLES or hi_step > lo_step * (1 + dt_tolerance):
         return None
     # Without a time column the rows were numbered while reading: t0 = 0, dt = 1.
-    return dataclasses.replace(probe, n_samples=n, t0=t0, dt=(t_prev - t0) / (n - 1), u_min=float(u_min),
-                               u_max=float(u_max), u_first=u_first, y_peak=y_peak)
+    return dataclasses.replace(
+        probe,
+        n_samples=n,
+        t0=t0,
+        dt=(t_prev - t0) / (n - 1),
+        u_min=float(u_min),
+        u_max=float(u_max),
+        u_first=u_first,
+        y_peak=y_peak,
+    )

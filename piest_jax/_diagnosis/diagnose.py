@@ -205,8 +205,15 @@ def _prune(p, cfg, named, sigma2, n):
     return cfg, named, pruned
 
 
-def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, refit: bool = True,
-           solver: str | None = "lm", quiet: bool = True):
+def search(
+    rec: Record,
+    *,
+    max_effects: int = MAX_EFFECTS,
+    candidates=EFFECTS,
+    refit: bool = True,
+    solver: str | None = "lm",
+    quiet: bool = True,
+):
     """Run the naming loop on one identification record.
 
     **Arguments:**
@@ -239,8 +246,10 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     base_mse = cur = _cv(p, cfg)
     while len(named) < max_effects:
         todo = [c for c in candidates if c not in named]
-        fits = {c: _fit_many(p, cfg, c, EFFECT[c].grid(p))
-                for c in progress(todo, desc=f"diagnose, round {len(rounds) + 1}", quiet=quiet)}
+        fits = {
+            c: _fit_many(p, cfg, c, EFFECT[c].grid(p))
+            for c in progress(todo, desc=f"diagnose, round {len(rounds) + 1}", quiet=quiet)
+        }
         if not fits:
             break
         # What the current model misses leaks into its residual's noise floor; the best
@@ -251,17 +260,24 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
         scores = {}
         for c, (mse, q) in fits.items():
             score, ok = _significant(cur - mse, EFFECT[c].n_params, cur, sigma2, n)
-            scores[c] = dict(heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score),
-                             significant=ok, value=q, mse=mse)
+            scores[c] = dict(
+                heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score), significant=ok, value=q, mse=mse
+            )
         best = _prefer_input_driven(scores, max(scores, key=lambda k: scores[k]["score"]), cur, sigma2, n)
         ok = scores[best]["significant"]
-        rounds.append(dict(
-            current_heldout_rmse=float(np.sqrt(cur)) * sc.y_half,
-            noise_std=float(np.sqrt(sigma2)) * sc.y_half, effective_samples=n,
-            candidates={k: {kk: v[kk] for kk in ("heldout_rmse", "score", "significant")}
-                        for k, v in scores.items()},
-            best=best, named=ok, parameters=EFFECT[best].describe(scores[best]["value"]),
-        ))
+        rounds.append(
+            dict(
+                current_heldout_rmse=float(np.sqrt(cur)) * sc.y_half,
+                noise_std=float(np.sqrt(sigma2)) * sc.y_half,
+                effective_samples=n,
+                candidates={
+                    k: {kk: v[kk] for kk in ("heldout_rmse", "score", "significant")} for k, v in scores.items()
+                },
+                best=best,
+                named=ok,
+                parameters=EFFECT[best].describe(scores[best]["value"]),
+            )
+        )
         if len(rounds) == 1:
             first = scores
         if not ok:
@@ -292,14 +308,22 @@ def search(rec: Record, *, max_effects: int = MAX_EFFECTS, candidates=EFFECTS, r
     for label, c in (("model_base", {}), ("model_final", cfg)):
         f = _model.fit(full, c)
         # Both models get the same joint refinement, so the comparison stays fair.
-        models[label] = (dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None
-                         else _refined(full, thin, c, f, solver))
+        models[label] = (
+            dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None else _refined(full, thin, c, f, solver)
+        )
     # The named effects' standard errors, on the samples the refinement ran on.
     uncertainty = _uncertainty.parameter_uncertainty(thin, models["model_final"], sc) if cfg else None
     return dict(
-        effects=named, pruned=pruned, rounds=rounds, scaling=sc, noise_std=float(np.sqrt(sigma2)) * sc.y_half,
-        step=step, heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
-        heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half, uncertainty=uncertainty, **models,
+        effects=named,
+        pruned=pruned,
+        rounds=rounds,
+        scaling=sc,
+        noise_std=float(np.sqrt(sigma2)) * sc.y_half,
+        step=step,
+        heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
+        heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half,
+        uncertainty=uncertainty,
+        **models,
     )
 
 
@@ -310,6 +334,7 @@ def _refined(full, thin, cfg, f, solver):
     moves weights that sit at zero; the variable-projection fit at the refinement's nonlinear
     parameters gives those weights exactly. All three are judged at the full rate.
     """
+
     def mse(pred):
         return float(np.mean((pred - full.y) ** 2))
 
@@ -326,8 +351,13 @@ def _refined(full, thin, cfg, f, solver):
             pred = _model.predict(full, ref.cfg, g.w, g.w_v, g.norm)
             options.append(("solver_then_weights", mse(pred), vp_model(ref.cfg, g)))
     kept, best, model = min(options, key=lambda o: o[1] if np.isfinite(o[1]) else np.inf)
-    model["refinement"] = dict(result=ref.result, steps=ref.steps, kept=kept,
-                               rmse_start=float(np.sqrt(options[0][1])), rmse=float(np.sqrt(best)))
+    model["refinement"] = dict(
+        result=ref.result,
+        steps=ref.steps,
+        kept=kept,
+        rmse_start=float(np.sqrt(options[0][1])),
+        rmse=float(np.sqrt(best)),
+    )
     return model
 
 
@@ -358,8 +388,7 @@ def evaluate(rec: Record, sc: Scaling, model, *, transferable_only=False, histor
 def _predict(p, model, transferable_only, history):
     """A model's output on a prepared record, normalised units (see `evaluate`)."""
     if model.get("refined") is not None:
-        return _refine.predict(model["refined"], p, model["norm"], transferable_only=transferable_only,
-                               history=history)
+        return _refine.predict(model["refined"], p, model["norm"], transferable_only=transferable_only, history=history)
     cfg, w, w_v = dict(model["cfg"]), np.asarray(model["coef"]), np.asarray(model["coef_v"])
     if transferable_only or history is not None:
         cfg, w, w_v = _model.without(cfg, [n for n in cfg if EFFECT[n].record_specific], w, w_v)
@@ -418,8 +447,11 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
         rmse = float(np.sqrt(np.mean((full - rec.y) ** 2)))
         if best is None or rmse < best[1]:
             turns = [] if history is None else [float(a) * sc.u_half + sc.u_mid for a in history]
-            best = (full, rmse, dict(offset=float(coef[0]), history_turning_points=turns,
-                                     **_states(transients, coef[1:])))
+            best = (
+                full,
+                rmse,
+                dict(offset=float(coef[0]), history_turning_points=turns, **_states(transients, coef[1:])),
+            )
     return best
 
 
@@ -479,11 +511,13 @@ def _validate(validation: Record, sc: Scaling, s, named) -> DiagnosisValidation:
     vfi, rfi, est_f = evaluate_ic(validation, sc, s["model_final"])
     return DiagnosisValidation(
         record=validation,
-        baseline_rmse=rb, final_rmse=rf,
+        baseline_rmse=rb,
+        final_rmse=rf,
         # With the validation record's own initial conditions (offset, play and creep
         # states) estimated on it, everything else fixed: what the model predicts of a run
         # already in motion, as system identification tools report it.
-        baseline_rmse_ic=rbi, final_rmse_ic=rfi,
+        baseline_rmse_ic=rbi,
+        final_rmse_ic=rfi,
         baseline_fit_percent=float(fit_percent(validation.y, vb)),
         final_fit_percent=float(fit_percent(validation.y, vf)),
         baseline_fit_percent_ic=float(fit_percent(validation.y, vbi)),

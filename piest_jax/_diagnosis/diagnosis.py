@@ -60,8 +60,11 @@ class DiagnosisValidation:
         **Returns:** a new dict of numbers, strings and lists: every field but the record and
         the predictions.
         """
-        return {f.name: copy.deepcopy(getattr(self, f.name)) for f in dataclasses.fields(self)
-                if f.name not in ("record", "baseline_prediction", "final_prediction")}
+        return {
+            f.name: copy.deepcopy(getattr(self, f.name))
+            for f in dataclasses.fields(self)
+            if f.name not in ("record", "baseline_prediction", "final_prediction")
+        }
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -171,8 +174,7 @@ class Diagnosis(Mapping):
             "refinement": copy.deepcopy(self.refinement),
             "rounds": copy.deepcopy(self.rounds),
             "pruned": list(self.pruned),
-            "heldout": {"baseline_rmse": self.heldout_baseline_rmse,
-                        "final_rmse": self.heldout_final_rmse},
+            "heldout": {"baseline_rmse": self.heldout_baseline_rmse, "final_rmse": self.heldout_final_rmse},
             "n_samples": self.n_samples,
             "search_step": self.search_step,
             "where": copy.deepcopy(self.where),
@@ -204,5 +206,7 @@ class Diagnosis(Mapping):
         return key in self.to_json()
 
     def __repr__(self) -> str:
-        return (f"Diagnosis(effects={self.effects!r}, baseline_rmse={self.baseline_rmse:.4g}, "
-                f"final_rmse={self.final_rmse:.4g}, validation={self.validation is not None})")
+        return (
+            f"Diagnosis(effects={self.effects!r}, baseline_rmse={self.baseline_rmse:.4g}, "
+            f"final_rmse={self.final_rmse:.4g}, validation={self.validation is not None})"
+        )

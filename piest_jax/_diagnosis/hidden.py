@@ -79,8 +79,7 @@ def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0
     w *= rng.uniform(0.5, 5.0) / w.sum()
     truth = {"effects": list(effects), "forms": {}}
     # What the effects' forms may read: the record's time axis, input and plain PI operator.
-    ctx = types.SimpleNamespace(t=t, u=u, dt=dt, f0=f0, amp=amp, r=r,
-                                span0=np.ptp(_pi(u, r, w, np.zeros(n_true))))
+    ctx = types.SimpleNamespace(t=t, u=u, dt=dt, f0=f0, amp=amp, r=r, span0=np.ptp(_pi(u, r, w, np.zeros(n_true))))
     effect_seed = int(rng.integers(2**31))
 
     def simulate(active):
@@ -138,4 +137,3 @@ def _plain_pi_misfit(u, y):
     X = np.column_stack([plays(un, THRESHOLDS, np.full((1, N_PLAYS), un[0]))[0], np.ones(len(u))])
     res = y - X @ lstsq(X, y)
     return float(np.sqrt(np.mean(res**2)))
-

@@ -82,16 +82,28 @@ def locate(t, u, y, pred, noise_std: float) -> list[dict]:
     for a, b in zip(edges[:-1], edges[1:]):
         rms = float(np.sqrt(np.mean(r[a:b] ** 2)))
         out.append(
-            dict(kind="window", name=f"t = {t[a]:.4g}..{t[b - 1]:.4g}", n_samples=int(b - a),
-                 rms=rms, ratio_to_noise=rms / floor, structured=bool(rms > STRUCTURED_RATIO * floor))
+            dict(
+                kind="window",
+                name=f"t = {t[a]:.4g}..{t[b - 1]:.4g}",
+                n_samples=int(b - a),
+                rms=rms,
+                ratio_to_noise=rms / floor,
+                structured=bool(rms > STRUCTURED_RATIO * floor),
+            )
         )
     for name, m in regimes(t, u).items():
         if m.sum() < 3:
             continue
         rms = float(np.sqrt(np.mean(r[m] ** 2)))
         out.append(
-            dict(kind="regime", name=name, n_samples=int(m.sum()), rms=rms, ratio_to_noise=rms / floor,
-                 structured=bool(rms > STRUCTURED_RATIO * floor))
+            dict(
+                kind="regime",
+                name=name,
+                n_samples=int(m.sum()),
+                rms=rms,
+                ratio_to_noise=rms / floor,
+                structured=bool(rms > STRUCTURED_RATIO * floor),
+            )
         )
     du = np.gradient(u, t)
     tt = (t - t[0]) / max(t[-1] - t[0], 1e-300)
@@ -109,8 +121,15 @@ def locate(t, u, y, pred, noise_std: float) -> list[dict]:
     limit = 3.0 / np.sqrt(_effective_n(r))
     for name, f in feats.items():
         c = _corr(r, f) if np.ptp(f) > 0 else 0.0
-        out.append(dict(kind="correlation", name=name, correlation=c, limit=float(limit),
-                        structured=bool(abs(c) > limit and abs(c) > 0.1)))
+        out.append(
+            dict(
+                kind="correlation",
+                name=name,
+                correlation=c,
+                limit=float(limit),
+                structured=bool(abs(c) > limit and abs(c) > 0.1),
+            )
+        )
 
     def key(d):
         size = d.get("ratio_to_noise", abs(d.get("correlation", 0.0)) * 10)

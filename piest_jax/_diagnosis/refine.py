@@ -121,8 +121,9 @@ def data_of(p: Prepared, norm, *, pad: bool = True):
     extra = pad_count(T) if pad else 0
     # Padding repeats the last input (no play moves) at zero rate; its residuals are masked out.
     ext = lambda a, v: np.concatenate([a, np.full(extra, v)])  # noqa: E731
-    data = dict(u=ext(p.u, p.u[-1]), rho=ext(p.rho, 0.0), s=ext(p.s, p.s[-1]),
-                dt=np.asarray(p.dt), norm=np.asarray(norm, float))
+    data = dict(
+        u=ext(p.u, p.u[-1]), rho=ext(p.rho, 0.0), s=ext(p.s, p.s[-1]), dt=np.asarray(p.dt), norm=np.asarray(norm, float)
+    )
     y = ext(p.y, 0.0)
     mask = ext(np.ones(T), 0.0)
     return {k: jnp.asarray(v) for k, v in data.items()}, jnp.asarray(y), jnp.asarray(mask)
@@ -136,8 +137,9 @@ def _residuals(theta, args):
 @eqx.filter_jit
 def _solve(theta0, st, data, y, mask, *, solver, max_steps, rtol, atol):
     args = (st, data, y, mask)
-    sol = optx.least_squares(_residuals, least_squares_solver(solver, rtol, atol), theta0, args=args,
-                             max_steps=max_steps, throw=False)
+    sol = optx.least_squares(
+        _residuals, least_squares_solver(solver, rtol, atol), theta0, args=args, max_steps=max_steps, throw=False
+    )
     loss0 = jnp.sum(_residuals(theta0, args) ** 2)
     loss = jnp.sum(_residuals(sol.value, args) ** 2)
     return sol.value, sol.result, sol.stats["num_steps"], loss0, loss
@@ -156,8 +158,9 @@ class Refined(NamedTuple):
     accepted: bool
 
 
-def refine(p: Prepared, cfg, w, norm, *, solver="lm", max_steps: int = 100,
-           rtol: float = 1e-6, atol: float = 1e-9) -> Refined:
+def refine(
+    p: Prepared, cfg, w, norm, *, solver="lm", max_steps: int = 100, rtol: float = 1e-6, atol: float = 1e-9
+) -> Refined:
     """Refine a configuration fitted by `model.fit` jointly, by optimistix least squares.
 
     **Arguments:**
@@ -179,20 +182,21 @@ def refine(p: Prepared, cfg, w, norm, *, solver="lm", max_steps: int = 100,
     st = structure(cfg)
     theta0 = initial_params(cfg, w)
     data, y, mask = data_of(p, norm)
-    theta, result, steps, loss0, loss = _solve(theta0, st, data, y, mask, solver=solver,
-                                               max_steps=max_steps, rtol=rtol, atol=atol)
+    theta, result, steps, loss0, loss = _solve(
+        theta0, st, data, y, mask, solver=solver, max_steps=max_steps, rtol=rtol, atol=atol
+    )
     loss0, loss = float(loss0), float(loss)
     finite = np.isfinite(loss) and all(bool(jnp.all(jnp.isfinite(v))) for v in theta.values())
     accepted = bool(finite and loss < loss0)
     if not accepted:
         theta, loss = theta0, loss0
     new_cfg, _ = to_config(cfg, theta)
-    return Refined(theta, st, new_cfg, result_name(result), int(steps), float(np.sqrt(loss0)),
-                   float(np.sqrt(loss)), accepted)
+    return Refined(
+        theta, st, new_cfg, result_name(result), int(steps), float(np.sqrt(loss0)), float(np.sqrt(loss)), accepted
+    )
 
 
-def predict(refined: Refined, p: Prepared, norm, *, transferable_only=False,
-            history=None) -> np.ndarray:
+def predict(refined: Refined, p: Prepared, norm, *, transferable_only=False, history=None) -> np.ndarray:
     """The refined model's output on a record (normalised units, (T,)).
 
     **Arguments:** `refined`; `p`, a record in the identification record's units; `norm`, the

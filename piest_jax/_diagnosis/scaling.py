@@ -41,8 +41,9 @@ def noise_std(y, step: int = 1) -> float:
     step = int(step)
     if step < 1 or len(y) < SMOOTHER * step:
         raise ValueError(f"`step` must be in [1, {len(y) // SMOOTHER}] for {len(y)} samples, got {step}")
-    r = np.concatenate([k - _signal.savgol_filter(k, SMOOTHER, 3, mode="interp")
-                        for k in (y[i::step] for i in range(step))])
+    r = np.concatenate(
+        [k - _signal.savgol_filter(k, SMOOTHER, 3, mode="interp") for k in (y[i::step] for i in range(step))]
+    )
     h0 = _signal.savgol_coeffs(SMOOTHER, 3)[SMOOTHER // 2]
     mad = np.median(np.abs(r - np.median(r)))
     return float(1.4826 * mad / np.sqrt(1 - h0))
@@ -201,8 +202,14 @@ def scaling_of(rec: Record) -> Scaling:
     duration = float(rec.t[-1] - rec.t[0])
     f_dom = max(_reversals((rec.u - rec.u.min()) / np.ptp(rec.u)) / 2, 1.0) / duration
     return Scaling(
-        float(u_mid), float(u_half), float(y_mid), float(y_half), rate_scale,
-        float(2 * np.pi * 10 * f_dom), float(1 / f_dom), rec.dt,
+        float(u_mid),
+        float(u_half),
+        float(y_mid),
+        float(y_half),
+        rate_scale,
+        float(2 * np.pi * 10 * f_dom),
+        float(1 / f_dom),
+        rec.dt,
     )
 
 

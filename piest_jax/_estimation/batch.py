@@ -90,9 +90,7 @@ def _estimator_indices(estimator, B: int) -> tuple[tuple[str, ...], Array]:
 def _per_member(x, B: int, name: str, dtype) -> Array:
     x = jnp.asarray(x, dtype)
     if x.ndim > 1 or (x.ndim == 1 and x.shape[0] != B):
-        raise ValueError(
-            f"`{name}` must be a scalar or have one entry per member ({B}), got {x.shape}"
-        )
+        raise ValueError(f"`{name}` must be a scalar or have one entry per member ({B}), got {x.shape}")
     return jnp.broadcast_to(x, (B,))
 
 
@@ -147,9 +145,7 @@ def run_batch(
     n = r.shape[0]
     w = _checks.as_float_array(true_weights, "true_weights")
     if w.ndim not in (2, 3) or w.shape[0] != B or (w.ndim == 3 and w.shape[1] != T):
-        raise ValueError(
-            f"`true_weights` must be (B, n) or (B, T, n) with B = {B}, T = {T}, got {w.shape}"
-        )
+        raise ValueError(f"`true_weights` must be (B, n) or (B, T, n) with B = {B}, T = {T}, got {w.shape}")
     if w.shape[-1] != n:
         raise ValueError(f"{w.shape[-1]} true weights per member but {n} thresholds")
     if normalisation not in NORMALISATIONS:
@@ -174,8 +170,10 @@ def run_batch(
     settings = {
         k: _per_member(v, B, k, dtype)
         for k, v in (
-            ("P0", 1e8 if P0 is None else P0), ("noise_std", noise_std),
-            ("forgetting", 1.0 if forgetting is None else forgetting), ("gain", 1.0 if gain is None else gain),
+            ("P0", 1e8 if P0 is None else P0),
+            ("noise_std", noise_std),
+            ("forgetting", 1.0 if forgetting is None else forgetting),
+            ("gain", 1.0 if gain is None else gain),
         )
     }
     if _checks.is_concrete(settings["noise_std"]) and bool(jnp.any(settings["noise_std"] < 0)):
@@ -183,8 +181,19 @@ def run_batch(
     _check_settings(used, idx, settings)
     inputs = _checks.finite(inputs, "inputs")
     w = _checks.finite(w.astype(dtype), "true_weights")
-    return _run(used, normalisation, windup, rtol, inputs, w, r.astype(dtype), idx, settings,
-                jnp.asarray(dt, dtype), jax.random.split(key, B))
+    return _run(
+        used,
+        normalisation,
+        windup,
+        rtol,
+        inputs,
+        w,
+        r.astype(dtype),
+        idx,
+        settings,
+        jnp.asarray(dt, dtype),
+        jax.random.split(key, B),
+    )
 
 
 def _check_settings(used, idx, s) -> None:
@@ -199,14 +208,10 @@ def _check_settings(used, idx, s) -> None:
             raise ValueError(f"`P0` must be positive definite (positive) for {e!r} members")
         lam = v["forgetting"][sel]
         if e == "forgetting" and not np.all((lam > 0) & (lam <= 1)):
-            raise ValueError(
-                f"forgetting factor must be in (0, 1], got {lam.min():g}..{lam.max():g}"
-            )
+            raise ValueError(f"forgetting factor must be in (0, 1], got {lam.min():g}..{lam.max():g}")
         mu = v["gain"][sel]
         if e == "gradient" and not np.all((mu > 0) & (mu < 2)):
-            raise ValueError(
-                f"the normalised gradient gain must be in (0, 2), got {mu.min():g}..{mu.max():g}"
-            )
+            raise ValueError(f"the normalised gradient gain must be in (0, 2), got {mu.min():g}..{mu.max():g}")
 
 
 def _continuous(s, dt, normalisation, windup):
@@ -275,8 +280,10 @@ def _estimator_modules(estimator, B: int, n: int):
     items = [estimator] if isinstance(estimator, AbstractEstimator | type) else list(estimator)
     for e in items:
         if isinstance(e, type):
-            raise ValueError(f"`estimator` is the class {e.__name__}, not an estimator: pass an "
-                             f"instance with its settings, e.g. {e.__name__}(...)")
+            raise ValueError(
+                f"`estimator` is the class {e.__name__}, not an estimator: pass an "
+                f"instance with its settings, e.g. {e.__name__}(...)"
+            )
         if not isinstance(e, AbstractEstimator):
             raise ValueError(f"`estimator` mixes estimator objects with {e!r}: give names or objects")
     if items[0].n_plays is not None and items[0].n_plays != n:
@@ -287,13 +294,15 @@ def _estimator_modules(estimator, B: int, n: int):
         raise ValueError(f"`estimator` has {len(items)} entries but the batch has {B} members")
     if len({type(e) for e in items}) > 1:
         names = sorted({type(e).__name__ for e in items})
-        raise ValueError(f"one batch runs one estimator class, got {', '.join(names)}: run one batch per "
-                         "class, or give names")
+        raise ValueError(
+            f"one batch runs one estimator class, got {', '.join(names)}: run one batch per class, or give names"
+        )
     parts = [eqx.partition(e, eqx.is_array) for e in items]
     static = parts[0][1]
     if not all(eqx.tree_equal(static, s) for _, s in parts[1:]):
-        raise ValueError("the estimator objects differ in their static settings (e.g. `normalisation`): "
-                         "run one batch per setting")
+        raise ValueError(
+            "the estimator objects differ in their static settings (e.g. `normalisation`): run one batch per setting"
+        )
     shapes = {tuple(jnp.shape(x) for x in jax.tree.leaves(d)) for d, _ in parts}
     if len(shapes) > 1:
         raise ValueError("the estimator objects' settings differ in shape (e.g. scalar and matrix P0)")
@@ -356,9 +365,7 @@ def noise_study(
     sig_b = np.tile(np.r_[0.0, np.full(replicates, forgetting_noise)], len(lam))
     stats = run_batch(
         np.broadcast_to(u, (n_a + n_b, T)),
-        np.concatenate(
-            [np.broadcast_to(const, (n_a, T, 3)), np.broadcast_to(switched, (n_b, T, 3))]
-        ),
+        np.concatenate([np.broadcast_to(const, (n_a, T, 3)), np.broadcast_to(switched, (n_b, T, 3))]),
         r,
         key=key,
         estimator=["continuous"] * n_a + ["forgetting"] * n_b,
@@ -422,8 +429,11 @@ def noise_figure(report: dict):
         (line,) = a1.loglog(sig, np.asarray(nz["std"])[:, j], "o-", ms=4, label=f"std ω̂{j + 1}")
         a1.loglog(sig, np.asarray(nz["std_predicted"])[:, j], ":", color=line.get_color())
         a1.loglog(sig, np.abs(np.asarray(nz["bias"])[:, j]), "x", color=line.get_color())
-    a1.set(xlabel="noise std σ", ylabel="final estimate: std (o), |bias| (x)",
-           title=f"continuous RLS, P0 = {nz['P0']:.0e}; dotted: closed form")
+    a1.set(
+        xlabel="noise std σ",
+        ylabel="final estimate: std (o), |bias| (x)",
+        title=f"continuous RLS, P0 = {nz['P0']:.0e}; dotted: closed form",
+    )
     a1.legend(fontsize=8)
     fg = report["forgetting"]
     lam = np.asarray(fg["forgetting"])
@@ -432,16 +442,23 @@ def noise_figure(report: dict):
     bias = np.linalg.norm(np.asarray(fg["bias"]), axis=1)
     a2.loglog(memory, std, "o-", ms=4, label="‖std‖ (noise)")
     a2.loglog(memory, np.maximum(bias, 1e-16), "s--", ms=4, label="‖bias‖ (old weights)")
-    a2.set(xlabel="memory 1/(1 − λ) [samples]  (λ = 1 drawn at 1e4)", ylabel="final estimate",
-           title=f"forgetting RLS after a weight jump, σ = {fg['noise_std']}")
+    a2.set(
+        xlabel="memory 1/(1 − λ) [samples]  (λ = 1 drawn at 1e4)",
+        ylabel="final estimate",
+        title=f"forgetting RLS after a weight jump, σ = {fg['noise_std']}",
+    )
     a2.legend(fontsize=8)
     track = np.asarray(fg["time_to_1pct_after_jump"], float)
     ok = np.isfinite(track)
     a3.semilogx(memory[ok], track[ok], "o-", ms=4, label="re-converged")
-    a3.semilogx(memory[~ok], np.full((~ok).sum(), report["duration"] - fg["jump_time"]), "^",
-                color="C3", label="not within the record")
-    a3.set(xlabel="memory 1/(1 − λ) [samples]", ylabel="time to 1 % after the jump [s]",
-           title="tracking (noise-free)")
+    a3.semilogx(
+        memory[~ok],
+        np.full((~ok).sum(), report["duration"] - fg["jump_time"]),
+        "^",
+        color="C3",
+        label="not within the record",
+    )
+    a3.set(xlabel="memory 1/(1 − λ) [samples]", ylabel="time to 1 % after the jump [s]", title="tracking (noise-free)")
     a3.legend(fontsize=8)
     fig.tight_layout()
     return fig

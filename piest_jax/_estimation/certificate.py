@@ -99,9 +99,7 @@ def _sample_weights(H: Regressor, dt, normalisation: str) -> Signal:
     return jax.vmap(lambda h: sample_weight(h, dt, normalisation))(H).astype(H.dtype)
 
 
-def noise_covariance(
-    H: Regressor, P0, dt, noise_std, *, normalisation: Normalisation = "paper"
-) -> Gram:
+def noise_covariance(H: Regressor, P0, dt, noise_std, *, normalisation: Normalisation = "paper") -> Gram:
     """Covariance of the final `ContinuousRLS` estimate when white noise is added to y.
 
     From the closed form, Ŵ_T − E[Ŵ_T] = R_T⁻¹ Σ_k c_k h_k ε_k, so for ε_k ~ N(0, σ²)

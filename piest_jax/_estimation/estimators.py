@@ -86,10 +86,7 @@ def _data(estimator: AbstractEstimator, H, y, initial_weights) -> tuple[Array, A
     check_estimator(estimator)
     H = _checks.as_float_array(H, "H")
     if H.ndim != 2:
-        raise ValueError(
-            f"`H` must be one regressor of shape (T, n), got shape {H.shape}; "
-            "batch several with jax.vmap"
-        )
+        raise ValueError(f"`H` must be one regressor of shape (T, n), got shape {H.shape}; batch several with jax.vmap")
     T, n = H.shape
     if T < 1 or n < 1:
         raise ValueError(f"`H` is empty: shape {H.shape}")
@@ -107,9 +104,7 @@ def _data(estimator: AbstractEstimator, H, y, initial_weights) -> tuple[Array, A
     else:
         w0 = _checks.as_float_array(initial_weights, "initial_weights")
         if w0.shape != (n,):
-            raise ValueError(
-                f"`initial_weights` has shape {w0.shape} but the regressor `H` has {n} columns"
-            )
+            raise ValueError(f"`initial_weights` has shape {w0.shape} but the regressor `H` has {n} columns")
     dtype = jnp.result_type(H, y, w0)
     H = _checks.finite(H, "H").astype(dtype)
     y = _checks.finite(y, "y").astype(dtype)
@@ -153,9 +148,7 @@ def estimate(
     a, b = _peak(H), _peak(y)
     e = _scan(estimator, H / a, y / b, w0 * (a / b))
     g = 1 / (a * a)
-    return Estimation(
-        e.weights * (b / a), e.error * b, e.gain_trace * g, e.gain_min_eig * g, e.gain_max_eig * g
-    )
+    return Estimation(e.weights * (b / a), e.error * b, e.gain_trace * g, e.gain_min_eig * g, e.gain_max_eig * g)
 
 
 def _peak(x: Array) -> Array:

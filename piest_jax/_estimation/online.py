@@ -280,8 +280,9 @@ def estimate_record(
         if long_windows:
             boundary = (first // window + 1) * window - first
             # The boundary is traced, not static: one compiled program for every chunk.
-            state, w, e, G0, G1, I0, I1 = _run_chunk_long(estimator, state, Hn, jnp.asarray(yc, dtype), valid,
-                                                          jnp.asarray(boundary), cert)
+            state, w, e, G0, G1, I0, I1 = _run_chunk_long(
+                estimator, state, Hn, jnp.asarray(yc, dtype), valid, jnp.asarray(boundary), cert
+            )
             gram_acc += np.asarray(G0)
             info_acc += np.asarray(I0)
             if boundary <= size:  # a window ends in this chunk
@@ -292,8 +293,9 @@ def estimate_record(
                 gram_acc = np.array(G1)
             info_acc += np.asarray(I1)
         else:
-            state, w, e, lo, hi, info, info_min = _run_chunk(estimator, state, Hn, jnp.asarray(yc, dtype), info,
-                                                             valid, window, cert)
+            state, w, e, lo, hi, info, info_min = _run_chunk(
+                estimator, state, Hn, jnp.asarray(yc, dtype), info, valid, window, cert
+            )
             full = size // window
             lam_min.append(np.asarray(lo[:full]))
             lam_max.append(np.asarray(hi[:full]))
@@ -324,12 +326,20 @@ def estimate_record(
     else:
         bound, chunk_t = np.zeros(0), np.zeros(0)
     return OnlineEstimate(
-        thresholds=jnp.asarray(r), initial_states=jnp.asarray(x0), weights=jnp.asarray(weights),
-        offset=jnp.asarray(off), t=jnp.asarray((marks + start) * float(dt)), weights_trajectory=jnp.asarray(W[:, :n]),
+        thresholds=jnp.asarray(r),
+        initial_states=jnp.asarray(x0),
+        weights=jnp.asarray(weights),
+        offset=jnp.asarray(off),
+        t=jnp.asarray((marks + start) * float(dt)),
+        weights_trajectory=jnp.asarray(W[:, :n]),
         offset_trajectory=jnp.asarray(W[:, n] if offset else np.zeros(len(W))),
-        error_rms=jnp.asarray(rms), final_rmse=final_rmse,
-        window_t=jnp.asarray((np.arange(len(lo)) * window + start) * float(dt)), pe_levels=jnp.asarray(lo),
-        exciting=jnp.asarray(exciting), bound_t=jnp.asarray(chunk_t), gram_bound=jnp.asarray(bound),
+        error_rms=jnp.asarray(rms),
+        final_rmse=final_rmse,
+        window_t=jnp.asarray((np.arange(len(lo)) * window + start) * float(dt)),
+        pe_levels=jnp.asarray(lo),
+        exciting=jnp.asarray(exciting),
+        bound_t=jnp.asarray(chunk_t),
+        gram_bound=jnp.asarray(bound),
     )
 
 

@@ -24,8 +24,11 @@ def online_estimate_figure(result, *, title: str = "rls", t0: float = 0.0):
         ax[0, 0].plot(t, W[:, j], lw=0.8)
     ax[0, 0].set(xlabel="t [s]", ylabel="weights", title=f"{title}: weights")
     ax[0, 1].semilogy(t, np.maximum(np.asarray(result.error_rms), 1e-300), lw=0.8)
-    ax[0, 1].set(xlabel="t [s]", ylabel="RMS prediction error",
-                 title=f"a-priori error (final RMSE {float(result.final_rmse):.3g})")
+    ax[0, 1].set(
+        xlabel="t [s]",
+        ylabel="RMS prediction error",
+        title=f"a-priori error (final RMSE {float(result.final_rmse):.3g})",
+    )
     lv = np.asarray(result.pe_levels, float)
     ax[1, 0].semilogy(t0 + np.asarray(result.window_t), np.maximum(lv, 1e-300), "o-", ms=3)
     ax[1, 0].set(xlabel="window start [s]", ylabel="PE level (normalised)", title="excitation per window")

@@ -124,17 +124,12 @@ def reproduce(name: str, *, P0: float = DEFAULT_P0, normalisation: str = "paper"
     truth = jnp.asarray(case.weights, dtype)
     sweep = jnp.asarray(SWEEP_P0, dtype)
     window = int(round(case.window_s / DT))
-    res, idx, cert, c1, rho = _run(
-        u, truth, jnp.asarray(P0, dtype), sweep, normalisation=normalisation, window=window
-    )
+    res, idx, cert, c1, rho = _run(u, truth, jnp.asarray(P0, dtype), sweep, normalisation=normalisation, window=window)
     w = np.asarray(res[0])
     if not np.all(np.isfinite(w)):
         # Only reachable near the float range (P0 beyond about 1e200): say so instead of plotting NaN.
         raise ValueError(f"P0 = {P0:g} overflows {w.dtype} in the estimator; use a smaller P0")
-    tsweep = {
-        n: [float(t[i]) if i < len(t) else float("inf") for i in np.asarray(v)]
-        for n, v in idx.items()
-    }
+    tsweep = {n: [float(t[i]) if i < len(t) else float("inf") for i in np.asarray(v)] for n, v in idx.items()}
     final = w[-1]
     truth_np = np.asarray(case.weights)
     u_np = np.asarray(u)
@@ -209,10 +204,8 @@ def figure(report: dict):
         a2.loglog(p0s[ok], np.maximum(ts[ok], DT), style, color=color, ms=4, label=label)
         a2.loglog(p0s[~ok], np.full((~ok).sum(), DURATION), "^", color=color, ms=5, mfc="none")
     a2.axvline(report["P0"], color="gray", lw=0.8, ls=":", label=f"chosen P0 = {report['P0']:.0e}")
-    a2.axhline(report["time_input_exceeds_r_max"], color="k", lw=0.6, ls="-.",
-               label="u first exceeds r_max")
-    a2.set(xlabel="P0", ylabel="time to 1 % [s]",
-           title="convergence time vs P0 (open ▲: not within 1 s)")
+    a2.axhline(report["time_input_exceeds_r_max"], color="k", lw=0.6, ls="-.", label="u first exceeds r_max")
+    a2.set(xlabel="P0", ylabel="time to 1 % [s]", title="convergence time vs P0 (open ▲: not within 1 s)")
     a2.legend(fontsize=8)
     fig.tight_layout()
     return fig

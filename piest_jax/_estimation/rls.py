@@ -68,8 +68,7 @@ def check_p0(P0, name: str = "P0") -> Array:
             raise ValueError(f"`{name}` must be symmetric positive definite: it is not symmetric")
         if np.linalg.eigvalsh(p)[0] <= 0:
             raise ValueError(
-                f"`{name}` must be symmetric positive definite: smallest eigenvalue "
-                f"{np.linalg.eigvalsh(p)[0]:.3g}"
+                f"`{name}` must be symmetric positive definite: smallest eigenvalue {np.linalg.eigvalsh(p)[0]:.3g}"
             )
         return P0
     bad = ~jnp.all(jnp.isfinite(P0)) | (jnp.linalg.eigvalsh(P0)[0] <= 0)
@@ -116,9 +115,7 @@ class ContinuousRLS(AbstractEstimator):
 
     def __init__(self, P0, dt, *, normalisation: Normalisation = "paper"):
         if normalisation not in NORMALISATIONS:
-            raise ValueError(
-                f"unknown normalisation {normalisation!r}; choose one of {NORMALISATIONS}"
-            )
+            raise ValueError(f"unknown normalisation {normalisation!r}; choose one of {NORMALISATIONS}")
         self.P0 = check_p0(P0)
         dt = _checks.as_float_array(dt, "dt")
         if dt.ndim != 0:

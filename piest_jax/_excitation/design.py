@@ -69,10 +69,12 @@ def _waypoints(r, m, level):
 
 def _costs(r, levels, step):
     """Samples per half-cycle of each level: one segment per waypoint, each at the slew limit."""
-    return np.array([
-        sum(max(1, math.ceil(d / step - 1e-9)) for d in np.diff(np.append(0.0, _waypoints(r, m, q))) if d > 0)
-        for m, q in enumerate(levels)
-    ])
+    return np.array(
+        [
+            sum(max(1, math.ceil(d / step - 1e-9)) for d in np.diff(np.append(0.0, _waypoints(r, m, q))) if d > 0)
+            for m, q in enumerate(levels)
+        ]
+    )
 
 
 def _information(shares, gains, costs):
@@ -147,8 +149,10 @@ def _check(r, amplitude, n_samples, window, dt, slew):
         if isinstance(v, bool) or not isinstance(v, int | float | np.floating) or not (math.isfinite(v) and v > 0):
             raise ValueError(f"`{name}` must be a positive finite number, got {v!r}")
     if amplitude > 1e150:
-        raise ValueError(f"`amplitude` ({amplitude:g}) is too large: the design squares swings of 2 A; "
-                         "express the input in larger units")
+        raise ValueError(
+            f"`amplitude` ({amplitude:g}) is too large: the design squares swings of 2 A; "
+            "express the input in larger units"
+        )
     if amplitude <= r[-1]:
         raise ValueError(
             f"`amplitude` ({amplitude:g}) must exceed the largest threshold ({r[-1]:g}): a swing of "

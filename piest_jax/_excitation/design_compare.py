@@ -108,18 +108,22 @@ def excitation_figure(inputs: dict, reports: dict, *, dt: float, window: int):
         a1.plot(t[shown], np.asarray(u)[shown], lw=0.8, label=name)
         done = rep["time_to_1pct"]
         label = f"{name}: 1 % at {done:.3g} s" if math.isfinite(done) else f"{name}: not below 1 %"
-        line, = a2.semilogy(t + dt, np.maximum(rep["error"], 1e-16), lw=0.8, label=label)
-        a2.semilogy(rep["worst_k"] * dt, rep["worst_error"], ls="--", lw=1, color=line.get_color(),
-                    label=f"{name}: worst weights, final {rep['final_error_worst']:.2g}")
+        (line,) = a2.semilogy(t + dt, np.maximum(rep["error"], 1e-16), lw=0.8, label=label)
+        a2.semilogy(
+            rep["worst_k"] * dt,
+            rep["worst_error"],
+            ls="--",
+            lw=1,
+            color=line.get_color(),
+            label=f"{name}: worst weights, final {rep['final_error_worst']:.2g}",
+        )
         stride = max(1, window // 10)
         starts = np.arange(len(rep["margins"])) * stride * dt
-        a3.semilogy(starts, np.maximum(rep["margins"], 1e-300), "o-", ms=3,
-                    label=f"{name}: min {rep['margin']:.3g}")
+        a3.semilogy(starts, np.maximum(rep["margins"], 1e-300), "o-", ms=3, label=f"{name}: min {rep['margin']:.3g}")
     a1.set(xlabel="t [s]", ylabel="u", title="inputs (first two windows)")
     a2.axhline(TARGET_ERROR, color="k", lw=1, ls=":")
     a2.set(xlabel="t [s]", ylabel="‖Ŵ − W‖ / ‖W‖", title="the paper's RLS (dashed: worst weights)")
-    a3.set(xlabel="window start [s]", ylabel="guaranteed margin (lower bound on c1)",
-           title="margin per window")
+    a3.set(xlabel="window start [s]", ylabel="guaranteed margin (lower bound on c1)", title="margin per window")
     for a in (a1, a2, a3):
         a.legend(fontsize=8)
     fig.tight_layout()

@@ -78,8 +78,12 @@ def samples_to_target(H, w, settings: MapSettings):
 
     err, worst = lax.map(errors, A)
     err = err / jnp.linalg.norm(w)
-    return (_first_for_good(err <= TARGET_ERROR, checks),
-            _first_for_good(worst <= TARGET_ERROR, checks), err[-1], worst[-1])
+    return (
+        _first_for_good(err <= TARGET_ERROR, checks),
+        _first_for_good(worst <= TARGET_ERROR, checks),
+        err[-1],
+        worst[-1],
+    )
 
 
 def guaranteed_samples(H, margins, settings: MapSettings):
@@ -105,7 +109,7 @@ def guaranteed_samples(H, margins, settings: MapSettings):
     starts = jnp.arange(n_disjoint) * step * s.stride
     sq = jnp.sum(H * H, axis=1)
     peak = lax.map(lambda a: jnp.max(lax.dynamic_slice_in_dim(sq, a, s.window)), starts)
-    gain = s.P0 * s.window * s.dt / (1 + peak) ** 2 * margins[:: step][:n_disjoint]
+    gain = s.P0 * s.window * s.dt / (1 + peak) ** 2 * margins[::step][:n_disjoint]
     total = 1 + jnp.cumsum(gain)
     reached = total >= 1 / TARGET_ERROR
     end = starts + s.window

@@ -207,4 +207,3 @@ def pe_margin(H, u, r, window: int, *, stride: int = 1, tol=None) -> Float[Array
     tol = _tolerance(tol, H.dtype)
     ok = _event_level(H, u, r, window, stride) > tol
     return jnp.where(ok, _margin(H, u, r, window, stride), 0.0)
-

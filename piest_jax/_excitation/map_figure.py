@@ -49,19 +49,22 @@ def pe_map_figure(result: dict, settings):
         return [flags[idx == b].mean() if np.any(idx == b) else np.nan for b in range(len(edges) - 1)]
 
     mids = np.sqrt(np.maximum(edges[:-1], 1e-6) * np.maximum(edges[1:], 1e-6))
-    a2.plot(mids, fraction(pe), "o-",
-            label="PE (settled exactly)" if settled else "PE (c1 > tolerance)")
+    a2.plot(mids, fraction(pe), "o-", label="PE (settled exactly)" if settled else "PE (c1 > tolerance)")
     a2.plot(mids, fraction(res["exact"]), "x-.", label="exact condition holds")
     a2.plot(mids, fraction(res["sharper"]), "s--", label="sharper condition holds")
     a2.axvline(1.0, color="k", lw=1, ls="--")
-    a2.set(xscale="log", ylim=(-0.05, 1.05), xlabel="ρ(T0)", ylabel="fraction of draws",
-           title="fraction PE against ρ")
+    a2.set(xscale="log", ylim=(-0.05, 1.05), xlabel="ρ(T0)", ylabel="fraction of draws", title="fraction PE against ρ")
     a2.legend(fontsize=8)
     err = np.maximum(res["weight_error"], 1e-18)
     a3.scatter(np.maximum(c1n, floor), err, s=6, alpha=0.5, c=np.where(pe, "C0", "C3"))
     a3.axvline(tol, color="r", lw=1, ls=":")
-    a3.set(xscale="log", yscale="log", xlabel="normalised PE level c1",
-           ylabel="RLS ‖Ŵ − W‖ / ‖W‖ after the record", title="weight error against c1")
+    a3.set(
+        xscale="log",
+        yscale="log",
+        xlabel="normalised PE level c1",
+        ylabel="RLS ‖Ŵ − W‖ / ‖W‖ after the record",
+        title="weight error against c1",
+    )
     # The margin (a lower bound on c1 from the input's swings between events) against c1.
     ok = res["exact"] & (res["margin"] > 0) & (res["c1"] > 0)
     if np.any(ok):
@@ -70,20 +73,30 @@ def pe_map_figure(result: dict, settings):
         lo, hi = min(m.min(), c.min()), max(m.max(), c.max())
         a4.plot([lo, hi], [lo, hi], "k--", lw=1, label="c1 = margin")
         a4.legend(fontsize=8)
-    a4.set(xscale="log", yscale="log", xlabel="margin (lower bound from the input)",
-           ylabel="PE level c1", title="c1 against its guaranteed margin")
+    a4.set(
+        xscale="log",
+        yscale="log",
+        xlabel="margin (lower bound from the input)",
+        ylabel="PE level c1",
+        title="c1 against its guaranteed margin",
+    )
     # The weight error after the record against the margins' guarantee: measured <= worst case
     # over weight vectors <= the guarantee, for every draw.
     bound = res["guaranteed_error"]
-    a5.scatter(bound, np.maximum(res["worst_error"], 1e-18), s=6, alpha=0.5,
-               label="worst case over W: 1/(1 + P0 λmin(A))")
+    a5.scatter(
+        bound, np.maximum(res["worst_error"], 1e-18), s=6, alpha=0.5, label="worst case over W: 1/(1 + P0 λmin(A))"
+    )
     a5.scatter(bound, err, s=4, alpha=0.4, c="C3", label="this draw's W")
     lo = min(bound.min(), 1e-6)
     a5.plot([lo, 1], [lo, 1], "k--", lw=1, label="= guarantee")
-    a5.set(xscale="log", yscale="log", xlabel="guaranteed error bound from the margins",
-           ylabel="RLS weight error after the record",
-           title=f"convergence: {int((res['guaranteed_samples_to_1pct'] > 0).sum())} draws "
-           f"guaranteed 1 %, {int((res['samples_to_1pct'] > 0).sum())} reach it")
+    a5.set(
+        xscale="log",
+        yscale="log",
+        xlabel="guaranteed error bound from the margins",
+        ylabel="RLS weight error after the record",
+        title=f"convergence: {int((res['guaranteed_samples_to_1pct'] > 0).sum())} draws "
+        f"guaranteed 1 %, {int((res['samples_to_1pct'] > 0).sum())} reach it",
+    )
     a5.legend(fontsize=7)
     fig.tight_layout()
     return fig

@@ -57,8 +57,7 @@ def summarise(result: dict, settings: MapSettings) -> dict:
     fam = np.asarray(result["family"])
     total = _counts(rho, pe, sharper, old)
     per_family = {
-        FAMILIES[f]: _counts(rho[fam == f], pe[fam == f], sharper[fam == f], old[fam == f])
-        for f in settings.families
+        FAMILIES[f]: _counts(rho[fam == f], pe[fam == f], sharper[fam == f], old[fam == f]) for f in settings.families
     }
     c1 = np.asarray(result["c1"])
     margin = np.asarray(result["margin"])
@@ -100,9 +99,7 @@ def summarise(result: dict, settings: MapSettings) -> dict:
             "statement": "c1 >= min over windows of lambda_min(D^T D) / (4 L), D the play "
             "increments between the samples where the event row changes (Theorem 4)",
             "violations": int(violated.sum()),
-            "c1_over_margin_quantiles": (
-                np.quantile(ratio, [0.0, 0.1, 0.5, 0.9, 1.0]).tolist() if ratio.size else []
-            ),
+            "c1_over_margin_quantiles": (np.quantile(ratio, [0.0, 0.1, 0.5, 0.9, 1.0]).tolist() if ratio.size else []),
         },
         "convergence": {
             "statement": "the RLS weight error after rls_samples is at most its worst case over "

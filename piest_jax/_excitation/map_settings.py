@@ -86,9 +86,7 @@ def make_settings(
     if play_method not in METHODS:
         raise ValueError(f"unknown play method {play_method!r}; choose one of {METHODS}")
     idx = family_indices(families)
-    return MapSettings(
-        T, n, window, stride, float(dt), float(P0), rls, idx, dtype.name, play_method
-    )
+    return MapSettings(T, n, window, stride, float(dt), float(P0), rls, idx, dtype.name, play_method)
 
 
 def numerical_tolerance(dtype) -> float:

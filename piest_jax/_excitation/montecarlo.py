@@ -52,13 +52,9 @@ def _cases(keys, settings: MapSettings):
     nf = len(s.families)
     t = s.times()
     by_family = keys.reshape(-1, nf)
-    cases = [
-        jax.vmap(lambda k, f=f: draw_case(k, f, t, s.n_plays))(by_family[:, j])
-        for j, f in enumerate(s.families)
-    ]
+    cases = [jax.vmap(lambda k, f=f: draw_case(k, f, t, s.n_plays))(by_family[:, j]) for j, f in enumerate(s.families)]
     # Interleave back so row i of the result is draw i of the batch.
-    return tuple(jnp.stack(parts, axis=1).reshape((keys.shape[0],) + parts[0].shape[1:])
-                 for parts in zip(*cases))
+    return tuple(jnp.stack(parts, axis=1).reshape((keys.shape[0],) + parts[0].shape[1:]) for parts in zip(*cases))
 
 
 def _local_batch(keys, settings: MapSettings, loop: bool = True, inputs: bool = False) -> dict:

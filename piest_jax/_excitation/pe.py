@@ -20,8 +20,7 @@ def _regressor(H, name: str = "H") -> Array:
     H = _checks.as_float_array(H, name)
     if H.ndim != 2:
         raise ValueError(
-            f"`{name}` must be one regressor of shape (T, n), got shape {H.shape}; "
-            "batch several with jax.vmap"
+            f"`{name}` must be one regressor of shape (T, n), got shape {H.shape}; batch several with jax.vmap"
         )
     if H.shape[0] < 1 or H.shape[1] < 1:
         raise ValueError(f"`{name}` is empty: shape {H.shape}")
@@ -151,7 +150,7 @@ def _range(u: Array, window: int, stride: int) -> Array:
     window, stride, nw = _window_args(u.shape[0], window, stride)
     hi = _sliding(u, window, jnp.maximum)
     lo = _sliding(u, window, jnp.minimum)
-    return (hi - lo)[:: stride][:nw]
+    return (hi - lo)[::stride][:nw]
 
 
 def assumption1_ratio(u: SignalLike, r_max, window: int, *, stride: int = 1) -> Scalar:
@@ -177,9 +176,7 @@ def assumption1_ratio(u: SignalLike, r_max, window: int, *, stride: int = 1) -> 
     return jnp.min(windowed_range(u, window, stride=stride)) / (2 * r_max)
 
 
-def excited_plays(
-    H: Regressor, window: int, *, stride: int = 1, atol: float = 0.0
-) -> Bool[Array, "windows n"]:
+def excited_plays(H: Regressor, window: int, *, stride: int = 1, atol: float = 0.0) -> Bool[Array, "windows n"]:
     """Which plays move inside each window (their output range exceeds `atol`).
 
     A play that stays flat over a window is a constant there; with another flat play or with r_1 = 0

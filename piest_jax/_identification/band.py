@@ -78,8 +78,15 @@ class PredictionBand(eqx.Module):
         return float(np.mean((y >= lower) & (y <= upper)))
 
 
-def prediction_band(fit: PIFit | GPIFit | PreisachFit, u: SignalLike, *, initial_states=None,
-                    lag_states=None, offset=None, chunk: int = _cov.CHUNK) -> PredictionBand:
+def prediction_band(
+    fit: PIFit | GPIFit | PreisachFit,
+    u: SignalLike,
+    *,
+    initial_states=None,
+    lag_states=None,
+    offset=None,
+    chunk: int = _cov.CHUNK,
+) -> PredictionBand:
     """The linearised prediction band of a fitted model on an input.
 
     Per sample, the prediction's standard error sqrt(J_t Σ J_tᵀ), J_t the Jacobian of the
@@ -112,18 +119,20 @@ def prediction_band(fit: PIFit | GPIFit | PreisachFit, u: SignalLike, *, initial
     non-finite or empty input, states of the wrong size or a non-positive `chunk`.
     """
     if not isinstance(fit, PIFit | GPIFit | PreisachFit):
-        raise ValueError("`fit` must be a PIFit, GPIFit or PreisachFit (from fit_pi, fit_gpi, "
-                         f"fit_preisach), got {type(fit).__name__}")
+        raise ValueError(
+            "`fit` must be a PIFit, GPIFit or PreisachFit (from fit_pi, fit_gpi, "
+            f"fit_preisach), got {type(fit).__name__}"
+        )
     if fit.covariance is None or fit.residual_std is None:
-        raise ValueError("the fit has no covariance: fit it with `covariance` 'newey-west' or "
-                         "'gauss-newton', not None")
+        raise ValueError("the fit has no covariance: fit it with `covariance` 'newey-west' or 'gauss-newton', not None")
     if not _checks.is_whole(chunk) or chunk < 1:
         raise ValueError(f"`chunk` must be a positive whole number, got {chunk!r}")
     u = _checks.finite(_checks.signal(u, "u"), "u")
     if isinstance(fit, GPIFit | PreisachFit):
         if lag_states is not None or offset is not None:
-            raise ValueError(f"a {type(fit).__name__} has no creep or separate offset: give "
-                             "neither `lag_states` nor `offset`")
+            raise ValueError(
+                f"a {type(fit).__name__} has no creep or separate offset: give neither `lag_states` nor `offset`"
+            )
         pred, var, sigma = band_parts(fit, u, initial_states, chunk)
         return PredictionBand(pred, jnp.sqrt(jnp.maximum(var, 0.0)), sigma)
     dtype = jnp.result_type(u, fit.weights)
@@ -133,10 +142,8 @@ def prediction_band(fit: PIFit | GPIFit | PreisachFit, u: SignalLike, *, initial
     layout = _cov.Layout(n, k, fitted_states)
     names, index = layout.names(n, k)
     if names != tuple(fit.parameter_names):
-        raise ValueError("the fit's parameters do not match its model's; was it changed after "
-                         "fit_pi?")
-    x0 = _states(fit.initial_states if initial_states is None else initial_states, n, "initial_states",
-                 dtype)
+        raise ValueError("the fit's parameters do not match its model's; was it changed after fit_pi?")
+    x0 = _states(fit.initial_states if initial_states is None else initial_states, n, "initial_states", dtype)
     taus = weights_c = z0 = None
     if k:
         c = fit.creep
@@ -146,15 +153,20 @@ def prediction_band(fit: PIFit | GPIFit | PreisachFit, u: SignalLike, *, initial
     elif lag_states is not None:
         raise ValueError("`lag_states` given, but the fit has no creep")
     c0 = fit.offset if offset is None else offset
-    theta = _cov.flatten(layout, fit.thresholds.astype(dtype), fit.weights.astype(dtype), c0, x0, taus,
-                         weights_c, z0)
+    theta = _cov.flatten(layout, fit.thresholds.astype(dtype), fit.weights.astype(dtype), c0, x0, taus, weights_c, z0)
     # Σ over every parameter of the layout; given states and offset are known (no variance).
     P = theta.shape[0]
     cov = np.zeros((P, P))
     cov[np.ix_(index, index)] = np.asarray(fit.covariance, np.float64)
-    known = [name.startswith("initial_states") and initial_states is not None
-             or name.startswith("creep.initial_states") and lag_states is not None
-             or name == "offset" and offset is not None for name in names]
+    known = [
+        name.startswith("initial_states")
+        and initial_states is not None
+        or name.startswith("creep.initial_states")
+        and lag_states is not None
+        or name == "offset"
+        and offset is not None
+        for name in names
+    ]
     cov[index[np.asarray(known, bool)]] = 0.0
     cov[:, index[np.asarray(known, bool)]] = 0.0
     one = jnp.ones((), dtype)

@@ -47,10 +47,17 @@ def band_parts(fit: GPIFit | PreisachFit, u, initial_states=None, chunk: int = _
         keep = triangle_columns(*model.shape)
         x0 = model._start(u).astype(dtype)
         pred = model(u)
-        var = _preisach_variance(u, model.half_widths.astype(dtype), model.centres.astype(dtype),
-                                 model.blur.astype(dtype), x0, jnp.asarray(keep),
-                                 jnp.asarray(cov, dtype), min(int(chunk), u.shape[0]),
-                                 model.method)
+        var = _preisach_variance(
+            u,
+            model.half_widths.astype(dtype),
+            model.centres.astype(dtype),
+            model.blur.astype(dtype),
+            x0,
+            jnp.asarray(keep),
+            jnp.asarray(cov, dtype),
+            min(int(chunk), u.shape[0]),
+            model.method,
+        )
     return pred, var, jnp.asarray(fit.residual_std, dtype)
 
 

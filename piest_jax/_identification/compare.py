@@ -46,9 +46,7 @@ def _as_model(model) -> HysteresisModel:
         return model
     if hasattr(model, "model") and callable(model.model):
         return model.model()
-    raise ValueError(
-        f"`model` must be a HysteresisModel or a fit result (PIFit), got {type(model).__name__}"
-    )
+    raise ValueError(f"`model` must be a HysteresisModel or a fit result (PIFit), got {type(model).__name__}")
 
 
 def _admissible(theta, r, u0):
@@ -85,16 +83,23 @@ def _estimate(model, u, y, max_steps, rtol, atol):
     if model.creep is not None:
         z = model.creep.initial_states
         theta["z0"] = jnp.broadcast_to(u[0], (model.n_lags,)) if z is None else z
-    sol = optx.least_squares(_residuals, optx.LevenbergMarquardt(rtol=rtol, atol=atol), theta,
-                             args=(model, u, y), max_steps=max_steps, throw=False)
+    sol = optx.least_squares(
+        _residuals,
+        optx.LevenbergMarquardt(rtol=rtol, atol=atol),
+        theta,
+        args=(model, u, y),
+        max_steps=max_steps,
+        throw=False,
+    )
     loss0 = jnp.sum(_residuals(theta, (model, u, y)) ** 2)
     loss = jnp.sum(_residuals(sol.value, (model, u, y)) ** 2)
     # Keep the start when the solver made it worse (it cannot, short of a failure).
     return jax.tree.map(lambda a, b: jnp.where(loss <= loss0, a, b), sol.value, theta)
 
 
-def compare(model, u, y=None, *, estimate_initial: bool = True, max_steps: int = 200,
-            rtol: float = 1e-8, atol: float = 1e-10) -> Comparison:
+def compare(
+    model, u, y=None, *, estimate_initial: bool = True, max_steps: int = 200, rtol: float = 1e-8, atol: float = 1e-10
+) -> Comparison:
     """Predict a record with a model, optionally estimating the record's initial conditions.
 
     **Arguments:**

@@ -182,12 +182,13 @@ def _creep_inverse(op: PIOperator, creep, v, creep_states=None):
 def _own_inverse(model, desired, offset, initial_states, creep_states):
     """A generalized PI's or a Preisach model's inverse, started from `initial_states`."""
     if offset is not None or creep_states is not None:
-        raise ValueError(f"a {type(model).__name__} has no separate offset or creep to override: "
-                         "give neither `offset` nor `creep_states`")
+        raise ValueError(
+            f"a {type(model).__name__} has no separate offset or creep to override: "
+            "give neither `offset` nor `creep_states`"
+        )
     if isinstance(model, GeneralizedPI):
         if initial_states is not None:
-            model = model.with_initial_states(
-                admissible_states(model.pi.thresholds, initial_states))
+            model = model.with_initial_states(admissible_states(model.pi.thresholds, initial_states))
         return model.inverse(desired)
     if initial_states is not None:
         model = model.with_initial_states(initial_states)
@@ -196,7 +197,11 @@ def _own_inverse(model, desired, offset, initial_states, creep_states):
 
 def feedforward(
     model: PIFit | PIModel | HysteresisModel | PIOperator | GeneralizedPI | Preisach,
-    desired: SignalLike, *, offset=None, initial_states=None, creep_states=None,
+    desired: SignalLike,
+    *,
+    offset=None,
+    initial_states=None,
+    creep_states=None,
 ) -> Signal:
     """The input that makes the model's output follow `desired`: u = P⁻¹[desired - offset], or
     with creep the sample-by-sample inverse of PI + creep described above.

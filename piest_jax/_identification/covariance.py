@@ -71,7 +71,7 @@ class Layout(eqx.Module):
     def split(self, theta):
         out, i = {}, 0
         for name, m in self.sizes():
-            out[name] = theta[i:i + m]
+            out[name] = theta[i : i + m]
             i += m
         return out
 
@@ -90,8 +90,7 @@ class Layout(eqx.Module):
         return tuple(names), np.asarray(index, int)
 
 
-def flatten(layout: Layout, thresholds, weights, offset, states=None, taus=None, lag_weights=None,
-            lag_states=None):
+def flatten(layout: Layout, thresholds, weights, offset, states=None, taus=None, lag_weights=None, lag_states=None):
     """The flat parameter vector in the data's units, in the order of `layout`."""
     parts = [thresholds[1:], weights, jnp.atleast_1d(offset)]
     if layout.states:
@@ -201,8 +200,12 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     """
     p = theta.shape[0]
     T = u.shape[0]
-    data = (chunked(u, u[-1], chunk), chunked(y, 0.0, chunk), chunked(mask, 0.0, chunk),
-            chunked(jnp.arange(T), T, chunk))
+    data = (
+        chunked(u, u[-1], chunk),
+        chunked(y, 0.0, chunk),
+        chunked(mask, 0.0, chunk),
+        chunked(jnp.arange(T), T, chunk),
+    )
     s0, ds0, rows = chunk_rows(run, layout, theta, s, x0, z0, dt)
 
     def body(carry, ch):
@@ -299,8 +302,18 @@ def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=No
     _, S, Vt = np.linalg.svd(factor / d, full_matrices=True)
     S = np.pad(S, (0, p - S.shape[0]))  # a factor of fewer rows than columns: the rest are zero
     b = int(window) if method == "newey-west" else None
-    return _sandwich(S, Vt, norms, N, p, float(ete), method, b,
-                     None if b is None else np.asarray(blocks, np.float64), _floor(np.sqrt(N), p, eps))
+    return _sandwich(
+        S,
+        Vt,
+        norms,
+        N,
+        p,
+        float(ete),
+        method,
+        b,
+        None if b is None else np.asarray(blocks, np.float64),
+        _floor(np.sqrt(N), p, eps),
+    )
 
 
 def _gram_svd(G):
@@ -375,7 +388,7 @@ def scales(names, values, u_half, y_half):
     out = np.empty(len(names))
     for i, (n, v) in enumerate(zip(names, values)):
         if n.startswith("thresholds["):
-            j = int(n[len("thresholds["):-1])
+            j = int(n[len("thresholds[") : -1])
             below = v - r.get(f"thresholds[{j - 1}]", 0.0)
             out[i] = min(below, u_half - v)
         elif n == "offset":
@@ -391,8 +404,9 @@ def scales(names, values, u_half, y_half):
     return out
 
 
-def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, lag_base, fit_states,
-               n_plays, n_lags) -> dict:
+def fit_fields(
+    method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, lag_base, fit_states, n_plays, n_lags
+) -> dict:
     """The covariance fields of a `PIFit` from the chosen start's parameters `p` (normalised,
     padded; `r`, `w` its thresholds and weights): the Jacobian over every padded parameter (one
     compilation per padded shape), then the columns of the parameters in use."""
@@ -420,8 +434,9 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, la
     gaps = np.asarray(p["lag_theta"])[:n_lags] ** 2 if layout.k else np.zeros(0)
     T, held = on_bounds(names, gaps)
     if int(used.sum()) > LONG_RECORD:
-        cov, se, deficient, info = _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0,
-                                                       z0, dt, index, eps, CHUNK, T)
+        cov, se, deficient, info = _long_record_fields(
+            method, run, layout, theta, un, yn, mask, s, x0, z0, dt, index, eps, CHUNK, T
+        )
     else:
         pred, J = jacobian(run, layout, theta, un, s, x0, z0, dt)
         m = np.asarray(mask)[used]
@@ -437,10 +452,16 @@ def fit_fields(method, run, p, r, w, un, yn, mask, s, x0, z0, dt, lag_active, la
     values = theta[index]
     scale = scales(names, values, uh, yh)
     undetermined = deficient | ~(se < RELATIVE_LIMIT * scale)
-    return dict(parameter_names=names, parameter_values=jnp.asarray(values), covariance=jnp.asarray(cov),
-                std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
-                covariance_method=method, residual_std=jnp.asarray(info["sigma"], theta.dtype),
-                held=jnp.asarray(held))
+    return dict(
+        parameter_names=names,
+        parameter_values=jnp.asarray(values),
+        covariance=jnp.asarray(cov),
+        std_errors=jnp.asarray(se),
+        undetermined=jnp.asarray(undetermined),
+        covariance_method=method,
+        residual_std=jnp.asarray(info["sigma"], theta.dtype),
+        held=jnp.asarray(held),
+    )
 
 
 def on_bounds(names, gaps):
@@ -489,8 +510,7 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
     # J's selected columns mapped by T are Q (R[:, index] T): the same singular values.
     factor = np.asarray(R, np.float64)[:, index] @ T
     blocks = T.T @ np.asarray(blocks, np.float64)[np.ix_(index, index)] @ T
-    return estimate_moments(factor, blocks, float(ete), int(used.sum()), method=method, window=window,
-                            eps=eps)
+    return estimate_moments(factor, blocks, float(ete), int(used.sum()), method=method, window=window, eps=eps)
 
 
 def flagged_names(names, flags) -> tuple:
@@ -505,11 +525,16 @@ def report_keys(fit) -> dict:
     (method, parameter names, matrix) and `undetermined` (names); none without a covariance."""
     if fit.std_errors is None:
         return {}
-    return {"std_errors": dict(zip(fit.parameter_names, fit.std_errors)),
-            "covariance": {"method": fit.covariance_method, "parameter_names": fit.parameter_names,
-                           "matrix": fit.covariance},
-            "undetermined": fit.undetermined_names,
-            **({"held_on_bounds": fit.held_names} if getattr(fit, "held", None) is not None else {})}
+    return {
+        "std_errors": dict(zip(fit.parameter_names, fit.std_errors)),
+        "covariance": {
+            "method": fit.covariance_method,
+            "parameter_names": fit.parameter_names,
+            "matrix": fit.covariance,
+        },
+        "undetermined": fit.undetermined_names,
+        **({"held_on_bounds": fit.held_names} if getattr(fit, "held", None) is not None else {}),
+    }
 
 
 def play_flags(names, undetermined, n_plays):
@@ -530,8 +555,9 @@ def table(fit) -> str:
     """
     rows = ["| parameter | value | std error | |", "|---|---|---|---|"]
     held = set(getattr(fit, "held_names", ()))
-    for n, v, s, bad in zip(fit.parameter_names, np.asarray(fit.parameter_values),
-                            np.asarray(fit.std_errors), np.asarray(fit.undetermined)):
+    for n, v, s, bad in zip(
+        fit.parameter_names, np.asarray(fit.parameter_values), np.asarray(fit.std_errors), np.asarray(fit.undetermined)
+    ):
         se = f"± {s:.4g}" if np.isfinite(s) else "undetermined (rank)"
         note = "undetermined" if bad else "on its bound" if n in held else ""
         rows.append(f"| {n} | {v:.6g} | {se} | {note} |")

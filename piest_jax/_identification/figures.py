@@ -92,8 +92,14 @@ def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
         lower, upper = (np.asarray(b) for b in band)
         inside = float(np.mean(((y >= lower) & (y <= upper))[used]))
         # Above the residual, translucent, so both show.
-        a2.fill_between(*bin_extremes(t, lower - ym, upper - ym), color="C1", alpha=0.3, lw=0, zorder=3,
-                        label=f"band ({100 * inside:.1f} % inside)")
+        a2.fill_between(
+            *bin_extremes(t, lower - ym, upper - ym),
+            color="C1",
+            alpha=0.3,
+            lw=0,
+            zorder=3,
+            label=f"band ({100 * inside:.1f} % inside)",
+        )
     e = y - ym
     if e.shape[0] > 2 * BINS:
         a2.fill_between(*bin_extremes(t, e, e), color="C0", lw=0.6)

@@ -193,8 +193,7 @@ def _lag_weights(params, lag_active=None):
     return c if lag_active is None else c * lag_active
 
 
-def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None,
-             lag_active=None, lag_base=None):
+def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None, lag_active=None, lag_base=None):
     """Normalised model output; x0 (and the lags' z0) are used unless the parameters carry fitted
     initial states. Time is in samples here (dt = 1)."""
     r, w = _constrained(params, positive_weights, r_bound, active)
@@ -269,8 +268,22 @@ def _grid(n, n_starts, dtype, key):
     return grids
 
 
-def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_bound=None,
-                    active=None, z0=None, log_tau0=None, lag_active=None, lag_base=None, sol=None):
+def _initial_params(
+    r0,
+    u,
+    y,
+    x0,
+    mask,
+    positive_weights,
+    fit_initial_states,
+    r_bound=None,
+    active=None,
+    z0=None,
+    log_tau0=None,
+    lag_active=None,
+    lag_base=None,
+    sol=None,
+):
     """The starting parameters; `sol`, when given, is the weights' least-squares solution
     (play weights, lag weights, offset) already computed (the long-record path's, by chunks)."""
     n = r0.shape[0]
@@ -323,15 +336,47 @@ def _initial_params(r0, u, y, x0, mask, positive_weights, fit_initial_states, r_
 
 
 @eqx.filter_jit
-def _solve_starts(r0s, un, yn, x0, mask, r_bound, *, solver, positive_weights,
-                  fit_initial_states, max_steps, rtol, atol, batch=None, active=None, z0=None,
-                  log_tau0s=None, lag_active=None, lag_base=None):
+def _solve_starts(
+    r0s,
+    un,
+    yn,
+    x0,
+    mask,
+    r_bound,
+    *,
+    solver,
+    positive_weights,
+    fit_initial_states,
+    max_steps,
+    rtol,
+    atol,
+    batch=None,
+    active=None,
+    z0=None,
+    log_tau0s=None,
+    lag_active=None,
+    lag_base=None,
+):
     def one(r0, log_tau0, un, yn, x0, mask, r_bound, active, z0, lag_active, lag_base):
         args = (un, yn, x0, mask, positive_weights, r_bound, active, z0, lag_active, lag_base)
-        p0 = _initial_params(r0, un, yn, x0, mask, positive_weights, fit_initial_states, r_bound,
-                             active, z0, log_tau0, lag_active, lag_base)
-        sol = optx.least_squares(_residuals, least_squares_solver(solver, rtol, atol), p0, args=args,
-                                 max_steps=max_steps, throw=False)
+        p0 = _initial_params(
+            r0,
+            un,
+            yn,
+            x0,
+            mask,
+            positive_weights,
+            fit_initial_states,
+            r_bound,
+            active,
+            z0,
+            log_tau0,
+            lag_active,
+            lag_base,
+        )
+        sol = optx.least_squares(
+            _residuals, least_squares_solver(solver, rtol, atol), p0, args=args, max_steps=max_steps, throw=False
+        )
         res = _residuals(sol.value, args)
         loss = jnp.sum(res**2)
         loss = jnp.where(jnp.isfinite(loss), loss, jnp.inf)
@@ -460,9 +505,7 @@ def fit_pi(
         raise ValueError(f"unknown covariance {covariance!r}; choose one of {_cov.METHODS} or None")
     if n_starts < 1:
         raise ValueError(f"`n_starts` must be at least 1, got {n_starts}")
-    if starts_at_once is not None and (
-        not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1
-    ):
+    if starts_at_once is not None and (not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1):
         raise ValueError(f"`starts_at_once` must be a positive whole number, got {starts_at_once}")
     if not _checks.is_whole(max_steps) or max_steps < 1:
         raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
@@ -473,7 +516,13 @@ def fit_pi(
     if min_time_constant is not None and not (np.isfinite(min_time_constant) and min_time_constant > 0):
         raise ValueError(f"`min_time_constant` must be positive and finite, got {min_time_constant!r}")
     un, yn, mask, s, x0, r_start = _prepare(
-        u, y, n_plays, mask, thresholds0, initial_states, 3 if fit_initial_states else 2,
+        u,
+        y,
+        n_plays,
+        mask,
+        thresholds0,
+        initial_states,
+        3 if fit_initial_states else 2,
         extra=per_lag * n_lags,
     )
     T = jnp.shape(u)[0]
@@ -484,9 +533,7 @@ def fit_pi(
     active = None
     if pad_plays is not None:
         if not isinstance(pad_plays, (int, np.integer)) or pad_plays < n_plays:
-            raise ValueError(
-                f"`pad_plays` must be a whole number of at least n_plays={n_plays}, got {pad_plays!r}"
-            )
+            raise ValueError(f"`pad_plays` must be a whole number of at least n_plays={n_plays}, got {pad_plays!r}")
         if r_start is not None:
             raise ValueError("`pad_plays` and `thresholds0` cannot be combined")
     if pad_plays is not None:
@@ -500,8 +547,11 @@ def fit_pi(
     k_all = n_lags if pad_lags is None else int(pad_lags)
     if k_all > 0:
         used = np.flatnonzero(np.asarray(mask[:T]) > 0)
-        shortest = (shortest_time_constant(np.asarray(un[:T]), 1.0, mask[:T])
-                    if min_time_constant is None else float(min_time_constant) / dt)
+        shortest = (
+            shortest_time_constant(np.asarray(un[:T]), 1.0, mask[:T])
+            if min_time_constant is None
+            else float(min_time_constant) / dt
+        )
         lag_base = jnp.asarray(time_constants.lag_base(k_all, shortest), un.dtype)
         n_s = r0s.shape[0]
         if time_constants0 is None or n_lags == 0:
@@ -513,8 +563,9 @@ def fit_pi(
             tau0 = np.broadcast_to(np.sort(tau0) / dt, (n_s, n_lags))
             if key is not None and n_s > 1:
                 # Starts after the first scale them by random factors in [1/2, 2].
-                jitter = np.asarray(jax.random.uniform(jax.random.fold_in(key, 1), tau0.shape,
-                                                       minval=-np.log(2.0), maxval=np.log(2.0)))
+                jitter = np.asarray(
+                    jax.random.uniform(jax.random.fold_in(key, 1), tau0.shape, minval=-np.log(2.0), maxval=np.log(2.0))
+                )
                 tau0 = tau0 * np.exp(np.concatenate([np.zeros((1, n_lags)), jitter[1:]]))
                 tau0 = np.sort(tau0, axis=1)
         # Padding lags (inactive) start above the active ones; their parameters are zeroed.
@@ -531,9 +582,18 @@ def fit_pi(
         r_bound = jnp.asarray(float(max_threshold), un.dtype) / s.u_half
         if r_start is not None and float(r_start[-1]) >= float(r_bound):
             raise ValueError("`thresholds0` must lie below `max_threshold`")
-    common = dict(positive_weights=positive_weights, fit_initial_states=fit_initial_states,
-                  max_steps=max_steps, rtol=rtol, atol=atol, active=active, z0=z0,
-                  log_tau0s=log_tau0s, lag_active=lag_active, lag_base=lag_base)
+    common = dict(
+        positive_weights=positive_weights,
+        fit_initial_states=fit_initial_states,
+        max_steps=max_steps,
+        rtol=rtol,
+        atol=atol,
+        active=active,
+        z0=z0,
+        log_tau0s=log_tau0s,
+        lag_active=lag_active,
+        lag_base=lag_base,
+    )
     if isinstance(solver, str) and solver == "lm" and un.shape[0] > LONG_RECORD:
         from .normal_equations import solve_starts
 
@@ -542,8 +602,15 @@ def fit_pi(
         if starts_at_once is None:
             starts_at_once = default_starts_at_once(un.shape[0])
         params, loss, results, steps = _solve_starts(
-            r0s, un, yn, x0, mask, r_bound, solver=solver,
-            batch=min(int(starts_at_once), r0s.shape[0]), **common,
+            r0s,
+            un,
+            yn,
+            x0,
+            mask,
+            r_bound,
+            solver=solver,
+            batch=min(int(starts_at_once), r0s.shape[0]),
+            **common,
         )
     best = int(jnp.argmin(loss))
     if not bool(jnp.isfinite(loss[best])):
@@ -568,8 +635,25 @@ def fit_pi(
         creep = Creep(tau, cw, dt, zs)
     fields = {}
     if covariance is not None:
-        fields = _cov.fit_fields(covariance, run, p, r_all, w_all, un, yn, mask, s, x0, z0, dt,
-                                 lag_active, lag_base, fit_initial_states, n_plays, n_lags)
+        fields = _cov.fit_fields(
+            covariance,
+            run,
+            p,
+            r_all,
+            w_all,
+            un,
+            yn,
+            mask,
+            s,
+            x0,
+            z0,
+            dt,
+            lag_active,
+            lag_base,
+            fit_initial_states,
+            n_plays,
+            n_lags,
+        )
     unexcited_plays = thresholds >= s.u_half
     flagged = unexcited_plays
     if fields:
@@ -594,16 +678,12 @@ def _check_lags(n_lags, pad_lags, dt) -> None:
     if not isinstance(n_lags, (int, np.integer)) or n_lags < 0:
         raise ValueError(f"`n_lags` must be a whole number >= 0, got {n_lags!r}")
     if pad_lags is not None and (not isinstance(pad_lags, (int, np.integer)) or pad_lags < n_lags):
-        raise ValueError(
-            f"`pad_lags` must be a whole number of at least n_lags={n_lags}, got {pad_lags!r}"
-        )
+        raise ValueError(f"`pad_lags` must be a whole number of at least n_lags={n_lags}, got {pad_lags!r}")
     if not (isinstance(dt, (int, float, np.integer, np.floating)) and np.isfinite(dt) and dt > 0):
         raise ValueError(f"`dt` must be a positive finite number, got {dt!r}")
 
 
-def uniform_pi(
-    u: SignalLike, y: SignalLike, n_plays: int, *, initial_states=None, mask=None
-) -> PIFit:
+def uniform_pi(u: SignalLike, y: SignalLike, n_plays: int, *, initial_states=None, mask=None) -> PIFit:
     """The plain linear least-squares PI: n uniform thresholds on [0, half the input range).
 
     The baseline the gradient fit is compared with: only the weights and the offset are fitted.

@@ -66,24 +66,20 @@ def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2, extra=
         )
     u_lo, u_hi = float(un.min()), float(un.max())
     if not np.isfinite(u_hi - u_lo):
-        raise ValueError(
-            f"the input's range {u_lo:.3g} to {u_hi:.3g} overflows {un.dtype.name}; rescale `u`"
-        )
+        raise ValueError(f"the input's range {u_lo:.3g} to {u_hi:.3g} overflows {un.dtype.name}; rescale `u`")
     if not u_hi > u_lo:
         raise ValueError(f"the input has zero range (constant {u_lo:.6g}): it excites no play")
     y_lo, y_hi = float(yn.min()), float(yn.max())
     y_half = 0.5 * (y_hi - y_lo) if y_hi > y_lo else 1.0
-    s = Scales(*(jnp.asarray(v, dtype) for v in (0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo),
-                                                   0.5 * (y_lo + y_hi), y_half)))
+    s = Scales(
+        *(jnp.asarray(v, dtype) for v in (0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo), 0.5 * (y_lo + y_hi), y_half))
+    )
     if thresholds0 is not None:
         r0 = np.asarray(thresholds0, dtype=np.float64)
         if r0.shape != (n_plays,) or r0[0] != 0 or np.any(np.diff(r0) <= 0):
-            raise ValueError(
-                f"`thresholds0` must be {n_plays} increasing thresholds starting at 0, got {r0}"
-            )
+            raise ValueError(f"`thresholds0` must be {n_plays} increasing thresholds starting at 0, got {r0}")
         thresholds0 = jnp.asarray(r0 / float(s.u_half), dtype)
-    x0 = jnp.broadcast_to(u[0] if initial_states is None else jnp.asarray(initial_states, dtype),
-                          (n_plays,))
+    x0 = jnp.broadcast_to(u[0] if initial_states is None else jnp.asarray(initial_states, dtype), (n_plays,))
     x0 = (x0 - s.u_mid) / s.u_half
     un, yn = (u - s.u_mid) / s.u_half, (y - s.y_mid) / s.y_half
     # Records are padded to a few lengths so that nearby lengths share one compilation. Padding

@@ -132,14 +132,14 @@ def _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states):
 
 
 @eqx.filter_jit
-def _solve_starts(r0s, u, y, x0, mask, r_bound, *, n_terms, fit_initial_states, solver,
-                  max_steps, rtol, atol, batch):
+def _solve_starts(r0s, u, y, x0, mask, r_bound, *, n_terms, fit_initial_states, solver, max_steps, rtol, atol, batch):
     args = (u, y, x0, mask, r_bound)
 
     def one(r0):
         p0 = _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states)
-        sol = optx.least_squares(_residuals, least_squares_solver(solver, rtol, atol), p0,
-                                 args=args, max_steps=max_steps, throw=False)
+        sol = optx.least_squares(
+            _residuals, least_squares_solver(solver, rtol, atol), p0, args=args, max_steps=max_steps, throw=False
+        )
         loss = jnp.sum(_residuals(sol.value, args) ** 2)
         loss = jnp.where(jnp.isfinite(loss), loss, jnp.inf)
         return sol.value, loss, sol.result, sol.stats["num_steps"]
@@ -203,13 +203,12 @@ def fit_gpi(
         raise ValueError(f"`n_starts` must be at least 1, got {n_starts!r}")
     if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
-    if starts_at_once is not None and (
-        not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1
-    ):
+    if starts_at_once is not None and (not isinstance(starts_at_once, (int, np.integer)) or starts_at_once < 1):
         raise ValueError(f"`starts_at_once` must be a positive whole number, got {starts_at_once}")
     n_terms = int(n_terms)
-    un, yn, mask, s, x0, _ = prepare(u, y, n_plays, mask, None, initial_states,
-                                     3 if fit_initial_states else 2, extra=3 * n_terms - 1)
+    un, yn, mask, s, x0, _ = prepare(
+        u, y, n_plays, mask, None, initial_states, 3 if fit_initial_states else 2, extra=3 * n_terms - 1
+    )
     r_bound = None
     if max_threshold is not None:
         if not float(max_threshold) > 0:
@@ -218,9 +217,20 @@ def fit_gpi(
     r0s = _grid(n_plays, n_starts, un.dtype, key)
     batch = default_starts_at_once(un.shape[0]) if starts_at_once is None else int(starts_at_once)
     params, loss, results, steps = _solve_starts(
-        r0s, un, yn, x0, mask, r_bound, n_terms=n_terms, fit_initial_states=fit_initial_states,
-        solver=solver, max_steps=int(max_steps), rtol=rtol, atol=atol,
-        batch=max(1, min(batch, n_starts)))
+        r0s,
+        un,
+        yn,
+        x0,
+        mask,
+        r_bound,
+        n_terms=n_terms,
+        fit_initial_states=fit_initial_states,
+        solver=solver,
+        max_steps=int(max_steps),
+        rtol=rtol,
+        atol=atol,
+        batch=max(1, min(batch, n_starts)),
+    )
     best = int(jnp.argmin(loss))
     if not bool(jnp.isfinite(loss[best])):
         raise ValueError("every start of the fit produced non-finite residuals")
@@ -228,13 +238,18 @@ def fit_gpi(
     r, w, log_a, c, log_s = _unpack(p, r_bound)
     w = w / s.u_half
     pi = PIOperator(r * s.u_half, w, s.u_mid + s.u_half * p.get("initial_states", x0))
-    model = GeneralizedPI(pi, s.y_half * jnp.exp(log_a), c + s.u_mid * jnp.sum(w),
-                          jnp.exp(log_s), s.y_mid + s.y_half * p["offset"])
+    model = GeneralizedPI(
+        pi, s.y_half * jnp.exp(log_a), c + s.u_mid * jnp.sum(w), jnp.exp(log_s), s.y_mid + s.y_half * p["offset"]
+    )
     fields = {}
     if covariance is not None:
         T = jnp.shape(u)[0]
-        fields = gpi_covariance.fields(covariance, model, u, y, np.asarray(mask)[:T],
-                                       fit_initial_states)
-    return GPIFit(model=model, rmse=jnp.sqrt(loss[best]) * s.y_half,
-                  result=jax.tree.map(lambda a: a[best], results), n_steps=steps[best],
-                  start_rmse=jnp.sqrt(loss) * s.y_half, **fields)
+        fields = gpi_covariance.fields(covariance, model, u, y, np.asarray(mask)[:T], fit_initial_states)
+    return GPIFit(
+        model=model,
+        rmse=jnp.sqrt(loss[best]) * s.y_half,
+        result=jax.tree.map(lambda a: a[best], results),
+        n_steps=steps[best],
+        start_rmse=jnp.sqrt(loss) * s.y_half,
+        **fields,
+    )

@@ -128,8 +128,9 @@ def penalty_matrix(n_widths: int, n_centres: int, active=None) -> np.ndarray:
     return D.T @ D
 
 
-def normal_equations(u, y, weights, half_widths, centres, blur, x0, *, chunk: int = 2048,
-                     n_blocks: int = 1, method: Method = "scan"):
+def normal_equations(
+    u, y, weights, half_widths, centres, blur, x0, *, chunk: int = 2048, n_blocks: int = 1, method: Method = "scan"
+):
     """Accumulate the normal equations of the relay columns plus a constant, by blocks.
 
     **Arguments:**
@@ -166,8 +167,13 @@ def normal_equations(u, y, weights, half_widths, centres, blur, x0, *, chunk: in
         n = n.at[b].add(jnp.sum(wc))
         return (x, G, h, yy, n), None
 
-    init = (x0, jnp.zeros((n_blocks, P, P), dtype), jnp.zeros((n_blocks, P), dtype),
-            jnp.zeros((n_blocks,), dtype), jnp.zeros((n_blocks,), dtype))
+    init = (
+        x0,
+        jnp.zeros((n_blocks, P, P), dtype),
+        jnp.zeros((n_blocks, P), dtype),
+        jnp.zeros((n_blocks,), dtype),
+        jnp.zeros((n_blocks,), dtype),
+    )
     (_, G, h, yy, n), _ = lax.scan(step, init, (up, yp, wp, block))
     return G, h, yy, n
 
@@ -245,8 +251,12 @@ def fit_preisach(
 
     **Returns:** a [`PreisachFit`][piest_jax.PreisachFit] with the model in the data's units.
     """
-    for name, v, lo in (("n_widths", n_widths, 1), ("n_centres", n_centres, 2),
-                        ("n_blocks", n_blocks, 1), ("chunk", chunk, 1)):
+    for name, v, lo in (
+        ("n_widths", n_widths, 1),
+        ("n_centres", n_centres, 2),
+        ("n_blocks", n_blocks, 1),
+        ("chunk", chunk, 1),
+    ):
         if not _checks.is_whole(v) or v < lo:
             raise ValueError(f"`{name}` must be an integer >= {lo}, got {v!r}")
     if covariance is not None and covariance not in _cov.METHODS:
@@ -267,8 +277,10 @@ def fit_preisach(
     used = int(np.count_nonzero(w))
     n_coef = int(triangle(K, M).sum()) + 1
     if used < n_coef:
-        raise ValueError(f"a {K} × {M} grid has {n_coef} coefficients (its triangle and the offset) "
-                         f"but only {used} samples are fitted: use a coarser grid or a longer record")
+        raise ValueError(
+            f"a {K} × {M} grid has {n_coef} coefficients (its triangle and the offset) "
+            f"but only {used} samples are fitted: use a coarser grid or a longer record"
+        )
     if smoothness is None:
         cands = tuple(float(c) for c in candidates)
         if not cands or not all(np.isfinite(c) and c >= 0 for c in cands):
@@ -284,9 +296,17 @@ def fit_preisach(
         raise ValueError("`u` is constant: a Preisach model needs the input to move")
     y_mid = 0.5 * (y.max() + y.min())
     y_half = max(0.5 * (y.max() - y.min()), np.finfo(float).tiny)
-    x0 = np.full(K, u[0]) if initial_states is None else np.broadcast_to(
-        np.asarray(_checks.finite(_checks.per_play(initial_states, K, "initial_states"),
-                                  "initial_states"), dtype=np.float64), (K,))
+    x0 = (
+        np.full(K, u[0])
+        if initial_states is None
+        else np.broadcast_to(
+            np.asarray(
+                _checks.finite(_checks.per_play(initial_states, K, "initial_states"), "initial_states"),
+                dtype=np.float64,
+            ),
+            (K,),
+        )
+    )
     # Sample-level blocks need at least one chunk each.
     chunk = int(max(1, min(chunk, math.ceil(T / n_blocks))))
     nb = min(n_blocks, math.ceil(T / chunk))
@@ -295,11 +315,20 @@ def fit_preisach(
     r = np.arange(K) / K
     c = -1.0 + (2.0 * np.arange(M) + 1.0) / M
     d = np.full(M, 1.0 / M)
-    G, h, yy, n = jax.device_get(_normal_equations(
-        jnp.asarray((u - u_mid) / u_half, dtype), jnp.asarray((y - y_mid) / y_half, dtype),
-        jnp.asarray(w, dtype), jnp.asarray(r, dtype), jnp.asarray(c, dtype),
-        jnp.asarray(d, dtype), jnp.asarray((x0 - u_mid) / u_half, dtype),
-        chunk=chunk, n_blocks=nb, method=method))
+    G, h, yy, n = jax.device_get(
+        _normal_equations(
+            jnp.asarray((u - u_mid) / u_half, dtype),
+            jnp.asarray((y - y_mid) / y_half, dtype),
+            jnp.asarray(w, dtype),
+            jnp.asarray(r, dtype),
+            jnp.asarray(c, dtype),
+            jnp.asarray(d, dtype),
+            jnp.asarray((x0 - u_mid) / u_half, dtype),
+            chunk=chunk,
+            n_blocks=nb,
+            method=method,
+        )
+    )
     G, h, yy, n = (np.asarray(a, dtype=np.float64) for a in (G, h, yy, n))
     Gt, ht, yyt, nt = G.sum(0), h.sum(0), yy.sum(), n.sum()
 
@@ -344,14 +373,28 @@ def fit_preisach(
     fields = {}
     if covariance is not None:
         grid = (r, c, d, (x0 - u_mid) / u_half)
-        fields = _covariance(covariance, model, theta, Gt, pen(lam), active, monotone, u, y, w,
-                             (u_mid, u_half, y_mid, y_half), grid, chunk, method)
-    return PreisachFit(model=model, rmse=rmse, smoothness=lam, candidates=cands,
-                       held_out_rmse=tuple(scores), n_blocks=nb, **fields)
+        fields = _covariance(
+            covariance,
+            model,
+            theta,
+            Gt,
+            pen(lam),
+            active,
+            monotone,
+            u,
+            y,
+            w,
+            (u_mid, u_half, y_mid, y_half),
+            grid,
+            chunk,
+            method,
+        )
+    return PreisachFit(
+        model=model, rmse=rmse, smoothness=lam, candidates=cands, held_out_rmse=tuple(scores), n_blocks=nb, **fields
+    )
 
 
-def _covariance(method, model, theta, G, pen, active, monotone, u, y, w, scales, grid, chunk,
-                play_method) -> dict:
+def _covariance(method, model, theta, G, pen, active, monotone, u, y, w, scales, grid, chunk, play_method) -> dict:
     """`PreisachFit`'s covariance fields (see `preisach_covariance.py`)."""
     u_mid, u_half, y_mid, y_half = scales
     e = (y - np.asarray(model(u), np.float64)) / y_half
@@ -364,13 +407,22 @@ def _covariance(method, model, theta, G, pen, active, monotone, u, y, w, scales,
         window = _cov.bandwidth(e[used])
         keep = triangle_columns(*active.shape)
         dtype = jnp.result_type(float)
-        blocks = np.asarray(preisach_covariance.score_blocks(
-            jnp.asarray((u - u_mid) / u_half, dtype), jnp.asarray(w * e, dtype),
-            *(jnp.asarray(a, dtype) for a in grid), jnp.asarray(keep), window,
-            max(int(chunk), window), play_method), np.float64)
+        blocks = np.asarray(
+            preisach_covariance.score_blocks(
+                jnp.asarray((u - u_mid) / u_half, dtype),
+                jnp.asarray(w * e, dtype),
+                *(jnp.asarray(a, dtype) for a in grid),
+                jnp.asarray(keep),
+                window,
+                max(int(chunk), window),
+                play_method,
+            ),
+            np.float64,
+        )
     K, M = active.shape
     names = [f"density[{k},{m}]" for k in range(K) for m in range(M) if active[k, m]] + ["offset"]
-    out = preisach_covariance.fields(method, G, G + pen, free, int(used.sum()),
-                                     float(np.sum(w * e * e)), y_half, names, blocks, window)
+    out = preisach_covariance.fields(
+        method, G, G + pen, free, int(used.sum()), float(np.sum(w * e * e)), y_half, names, blocks, window
+    )
     values = np.append(theta[:-1] * y_half, y_mid + y_half * theta[-1])
     return {**out, "parameter_values": jnp.asarray(values)}

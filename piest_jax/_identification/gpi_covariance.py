@@ -36,8 +36,14 @@ def names(n: int, k: int, states: bool) -> tuple:
 def flatten(model: GeneralizedPI, states: bool):
     """The parameter vector of `model` (see the module notes)."""
     pi = model.pi
-    parts = [pi.thresholds[1:], pi.weights, jnp.exp(model.log_amplitudes), model.centres,
-             jnp.exp(model.log_scales[1:]), jnp.atleast_1d(model.offset)]
+    parts = [
+        pi.thresholds[1:],
+        pi.weights,
+        jnp.exp(model.log_amplitudes),
+        model.centres,
+        jnp.exp(model.log_scales[1:]),
+        jnp.atleast_1d(model.offset),
+    ]
     if states:
         parts.append(pi.initial_states[1:])
     return jnp.concatenate([jnp.asarray(p, pi.weights.dtype).reshape(-1) for p in parts])
@@ -98,7 +104,12 @@ def fields(method: str, model: GeneralizedPI, u, y, mask, states: bool) -> dict:
         elif name.startswith("output.centres["):
             scale[i] = v_half
     undetermined = deficient | ~(se < _cov.RELATIVE_LIMIT * scale)
-    return dict(parameter_names=parameter_names, parameter_values=jnp.asarray(values),
-                covariance=jnp.asarray(cov), std_errors=jnp.asarray(se),
-                undetermined=jnp.asarray(undetermined), covariance_method=method,
-                residual_std=jnp.asarray(info["sigma"], dtype))
+    return dict(
+        parameter_names=parameter_names,
+        parameter_values=jnp.asarray(values),
+        covariance=jnp.asarray(cov),
+        std_errors=jnp.asarray(se),
+        undetermined=jnp.asarray(undetermined),
+        covariance_method=method,
+        residual_std=jnp.asarray(info["sigma"], dtype),
+    )

@@ -124,11 +124,20 @@ class Identification:
         model = f.model if saturating else f.model()
         # The model's keys (schema, structure, parameters, creep) as `save_model` writes them,
         # so that `load_model` reads fit.json back; then how it was fitted.
-        report = {**model_keys(model), "data": rec.source, "n_samples": rec.n_samples, "dt": rec.dt,
-                  **(report_keys(f, self.positive_weights) if saturating else _pi_keys(f, model))}
+        report = {
+            **model_keys(model),
+            "data": rec.source,
+            "n_samples": rec.n_samples,
+            "dt": rec.dt,
+            **(report_keys(f, self.positive_weights) if saturating else _pi_keys(f, model)),
+        }
         if not isinstance(f, PreisachFit):
-            report["solver"] = {"name": _solver_name(self.solver), "result": f.result_name,
-                                "steps": f.n_steps, "start_rmse": f.start_rmse}
+            report["solver"] = {
+                "name": _solver_name(self.solver),
+                "result": f.result_name,
+                "steps": f.n_steps,
+                "start_rmse": f.start_rmse,
+            }
         report.update(input_extent(rec, self.mask))
         if self.fit_from is not None:
             report["fit_from"] = self.fit_from
@@ -148,6 +157,7 @@ class Identification:
             if v.ic_band is not None:
                 report["validation_band_coverage_ic"] = v.band_coverage_ic
         return report
+
 
 def _pi_keys(f: PIFit, model) -> dict:
     """fit.json's keys for a PI or PI + creep fit: size, RMSE, flags, covariance, creep."""
@@ -177,8 +187,13 @@ def _solver_name(solver) -> str:
 
 def _selection_keys(sel) -> dict:
     if isinstance(sel, ModelSize):
-        return {"criterion": sel.criterion, "candidates": sel.candidates, "scores": sel.scores,
-                "rejected": sel.rejected, "selection_samples": sel.selection_samples}
+        return {
+            "criterion": sel.criterion,
+            "candidates": sel.candidates,
+            "scores": sel.scores,
+            "rejected": sel.rejected,
+            "selection_samples": sel.selection_samples,
+        }
     # The play counts tried for the plain PI model (the first step of the search), then every
     # structure tried.
     base = [(c, s) for c, s in zip(sel.candidates, sel.scores) if c[1] == sel.candidates[0][1]]
@@ -186,8 +201,10 @@ def _selection_keys(sel) -> dict:
         "criterion": "holdout",
         "candidates": [c[0] for c, _ in base],
         "scores": [s for _, s in base],
-        "models": [{"n_plays": c[0], "n_lags": c[1], "score": s, "rejected": c in sel.rejected}
-                   for c, s in zip(sel.candidates, sel.scores)],
+        "models": [
+            {"n_plays": c[0], "n_lags": c[1], "score": s, "rejected": c in sel.rejected}
+            for c, s in zip(sel.candidates, sel.scores)
+        ],
         "selection_samples": sel.selection_samples,
     }
 
@@ -207,8 +224,18 @@ class Plan:
         return 3 * (max(self.plays) + max(self.lags)) + 1
 
 
-def check_options(*, model="auto", plays="auto", lags=None, time_constants=None, candidates=None,
-                  criterion=None, initial_states=None, fit_initial_states=False, **others) -> None:
+def check_options(
+    *,
+    model="auto",
+    plays="auto",
+    lags=None,
+    time_constants=None,
+    candidates=None,
+    criterion=None,
+    initial_states=None,
+    fit_initial_states=False,
+    **others,
+) -> None:
     """Refuse options that contradict each other, or that the chosen mode would ignore.
 
     `others` are [`identify`][piest_jax.identify]'s further options by name (`terms`, `grid`,
@@ -217,11 +244,19 @@ def check_options(*, model="auto", plays="auto", lags=None, time_constants=None,
     """
     if model not in MODELS:
         raise ValueError(f"unknown `model` {model!r}; choose one of {', '.join(MODELS)}")
-    check_saturating(dict(model=model, plays=plays, lags=lags, time_constants=time_constants,
-                          candidates=candidates, criterion=criterion,
-                          fit_initial_states=fit_initial_states, **others))
-    if plays != "auto" and not (isinstance(plays, int | np.integer) and not isinstance(plays, bool)
-                                and plays >= 1):
+    check_saturating(
+        dict(
+            model=model,
+            plays=plays,
+            lags=lags,
+            time_constants=time_constants,
+            candidates=candidates,
+            criterion=criterion,
+            fit_initial_states=fit_initial_states,
+            **others,
+        )
+    )
+    if plays != "auto" and not (isinstance(plays, int | np.integer) and not isinstance(plays, bool) and plays >= 1):
         raise ValueError(f"`plays` must be a positive whole number or 'auto', got {plays!r}")
     if criterion is not None and criterion not in CRITERIA:
         raise ValueError(f"unknown `criterion` {criterion!r}; choose one of {', '.join(CRITERIA)}")
@@ -230,28 +265,30 @@ def check_options(*, model="auto", plays="auto", lags=None, time_constants=None,
     if plays != "auto":
         for given, name in ((candidates, "candidates"), (criterion, "criterion")):
             if given is not None:
-                raise ValueError(f"`{name}` is used only by `plays` auto; `plays` {plays} fixes "
-                                 "the number of plays")
+                raise ValueError(f"`{name}` is used only by `plays` auto; `plays` {plays} fixes the number of plays")
     if lags is not None:
         if model == "pi":
             raise ValueError("`lags` needs `model` pi+creep or auto, not `model` pi (no creep)")
         if time_constants is not None:
-            raise ValueError("give either `lags` or `time_constants` (whose count fixes the "
-                             "lags), not both")
+            raise ValueError("give either `lags` or `time_constants` (whose count fixes the lags), not both")
     if model == "pi" and time_constants is not None:
         raise ValueError("`time_constants` needs `model` pi+creep or auto, not `model` pi")
     if criterion == "bic" and model != "pi":
-        raise ValueError(f"`criterion` bic chooses the plays only; use it with `model` pi "
-                         f"(`model` {model} chooses by held-out error)")
+        raise ValueError(
+            f"`criterion` bic chooses the plays only; use it with `model` pi "
+            f"(`model` {model} chooses by held-out error)"
+        )
     for name, values in (("candidates", candidates), ("lags", lags)):
         if values is not None:
             try:
                 v = list(_counts(values))
             except TypeError:
-                raise ValueError(f"`{name}` must be a whole number or a list of them, got "
-                                 f"{values!r}") from None
-            if not v or any(not isinstance(c, int | np.integer) or isinstance(c, bool) or c < 1
-                            for c in v) or len(set(v)) != len(v):
+                raise ValueError(f"`{name}` must be a whole number or a list of them, got {values!r}") from None
+            if (
+                not v
+                or any(not isinstance(c, int | np.integer) or isinstance(c, bool) or c < 1 for c in v)
+                or len(set(v)) != len(v)
+            ):
                 raise ValueError(f"`{name}` must be distinct positive whole numbers, got {values!r}")
 
 
@@ -260,17 +297,34 @@ def _counts(values) -> tuple:
     return (values,) if isinstance(values, int | np.integer) else tuple(values)
 
 
-def plan(record: Record, *, model="auto", plays="auto", lags=None, time_constants=None,
-         candidates=None, criterion=None, fit_from=None, initial_states=None,
-         fit_initial_states=False) -> Plan:
+def plan(
+    record: Record,
+    *,
+    model="auto",
+    plays="auto",
+    lags=None,
+    time_constants=None,
+    candidates=None,
+    criterion=None,
+    fit_from=None,
+    initial_states=None,
+    fit_initial_states=False,
+) -> Plan:
     """The candidates `identify` tries on `record`, after checking the options against it.
 
     Raises `ValueError` for a constant input, a `fit_from` past the record's end, time
     constants the record cannot tell apart, or too few samples for every candidate.
     """
-    check_options(model=model, plays=plays, lags=lags, time_constants=time_constants,
-                  candidates=candidates, criterion=criterion, initial_states=initial_states,
-                  fit_initial_states=fit_initial_states)
+    check_options(
+        model=model,
+        plays=plays,
+        lags=lags,
+        time_constants=time_constants,
+        candidates=candidates,
+        criterion=criterion,
+        initial_states=initial_states,
+        fit_initial_states=fit_initial_states,
+    )
     _check_record(record)
     mask = fit_mask(record, fit_from)
     n_used = record.n_samples if mask is None else int(mask.sum())
@@ -358,44 +412,70 @@ def identify(
     samples for the candidates, or a validation record sampled at another interval than a
     model with creep was identified at.
     """
-    options = dict(model=model, plays=plays, lags=lags, time_constants=time_constants,
-                   candidates=candidates, criterion=criterion, initial_states=initial_states,
-                   fit_initial_states=fit_initial_states)
+    options = dict(
+        model=model,
+        plays=plays,
+        lags=lags,
+        time_constants=time_constants,
+        candidates=candidates,
+        criterion=criterion,
+        initial_states=initial_states,
+        fit_initial_states=fit_initial_states,
+    )
     if validation is not None and not isinstance(validation, Record):
         raise ValueError(f"`validation` must be a Record or None, got {type(validation).__name__}")
-    saturating = dict(terms=terms, grid=grid, smoothness=smoothness, solver=solver, starts=starts,
-                      positive_weights=positive_weights, max_threshold=max_threshold,
-                      max_steps=max_steps)
+    saturating = dict(
+        terms=terms,
+        grid=grid,
+        smoothness=smoothness,
+        solver=solver,
+        starts=starts,
+        positive_weights=positive_weights,
+        max_threshold=max_threshold,
+        max_steps=max_steps,
+    )
     check_options(**options, **saturating)
     if model in SATURATING:
         _check_record(record)
         mask = fit_mask(record, fit_from)
-        fit = fit_saturating(record, mask, model=model, plays=plays, key=key,
-                             initial_states=initial_states, fit_initial_states=fit_initial_states,
-                             **saturating)
+        fit = fit_saturating(
+            record,
+            mask,
+            model=model,
+            plays=plays,
+            key=key,
+            initial_states=initial_states,
+            fit_initial_states=fit_initial_states,
+            **saturating,
+        )
         checked = None
         if validation is not None:
-            raw, convention = validation_comparison(fit, validation, initial_states,
-                                                    fit_initial_states)
+            raw, convention = validation_comparison(fit, validation, initial_states, fit_initial_states)
             band = None
             if fit.covariance is not None:
                 states = None
                 if isinstance(fit, GPIFit) and not fit_initial_states:
                     states = validation.u[0] if initial_states is None else initial_states
                 band = prediction_band(fit, validation.u, initial_states=states)
-            checked = Validation(validation, raw, None, starts_at_rest(validation.u), convention,
-                                 band)
+            checked = Validation(validation, raw, None, starts_at_rest(validation.u), convention, band)
         return Identification(fit, record, None, checked, solver, fit_from, positive_weights)
     p = plan(record, fit_from=fit_from, **options)
     fit_options = dict(
-        mask=p.mask, solver=solver, n_starts=starts, key=key, positive_weights=positive_weights,
-        fit_initial_states=fit_initial_states, initial_states=initial_states,
-        max_threshold=max_threshold, max_steps=max_steps,
+        mask=p.mask,
+        solver=solver,
+        n_starts=starts,
+        key=key,
+        positive_weights=positive_weights,
+        fit_initial_states=fit_initial_states,
+        initial_states=initial_states,
+        max_threshold=max_threshold,
+        max_steps=max_steps,
     )
     if p.time_constants is not None:
         fit_options["time_constants0"] = p.time_constants
-    fit, selection = _choose_and_fit(record, p, model=model, plays=plays,
-                                     criterion=criterion or "holdout", quiet=quiet, **fit_options)
+    fit, selection = _choose_and_fit(
+        record, p, model=model, plays=plays, criterion=criterion or "holdout", quiet=quiet, **fit_options
+    )
     checked = None
     if validation is not None:
         checked = _validate(fit, record, validation, initial_states, fit_initial_states)
@@ -416,8 +496,10 @@ def _choose_and_fit(record, p: Plan, *, model, plays, criterion, quiet, **fit_op
 
 def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Validation:
     if fit.creep is not None and not np.isclose(val.dt, record.dt, rtol=1e-3):
-        raise ValueError(f"{val.source}: sampled every {val.dt:g}, but the creep was "
-                         f"identified at {record.dt:g}; use records with the same sampling")
+        raise ValueError(
+            f"{val.source}: sampled every {val.dt:g}, but the creep was "
+            f"identified at {record.dt:g}; use records with the same sampling"
+        )
     if fit_initial_states:
         states, convention = fit.initial_states, "fitted (the identification record's)"
     elif initial_states is not None:
@@ -433,25 +515,34 @@ def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Va
         # Fitted states keep their uncertainty; states given or taken from the record are known.
         raw_band = prediction_band(fit, val.u, initial_states=None if fit_initial_states else states)
         e = ic.model
-        ic_band = prediction_band(fit, val.u, initial_states=e.pi.initial_states, offset=e.offset,
-                                  lag_states=None if e.creep is None else e.creep.initial_states)
+        ic_band = prediction_band(
+            fit,
+            val.u,
+            initial_states=e.pi.initial_states,
+            offset=e.offset,
+            lag_states=None if e.creep is None else e.creep.initial_states,
+        )
     return Validation(val, raw, ic, starts_at_rest(val.u), convention, raw_band, ic_band)
 
 
 def input_extent(record: Record, mask) -> dict:
     """fit.json's `input_half_range`, `input_range` (where the model has seen data: `piest
     compensate` reports inputs outside it) and `n_fitted_samples`, for any fitted model."""
-    return {"input_half_range": 0.5 * float(np.ptp(record.u)),
-            "input_range": [float(record.u.min()), float(record.u.max())],
-            "n_fitted_samples": record.n_samples if mask is None else int(mask.sum())}
+    return {
+        "input_half_range": 0.5 * float(np.ptp(record.u)),
+        "input_range": [float(record.u.min()), float(record.u.max())],
+        "n_fitted_samples": record.n_samples if mask is None else int(mask.sum()),
+    }
 
 
 def _check_record(record) -> None:
     if not isinstance(record, Record):
         raise ValueError(f"`record` must be a Record (see load_record), got {type(record).__name__}")
     if np.ptp(record.u) == 0:
-        raise ValueError(f"{record.source}: the input u is constant ({record.u[0]:g}): it excites "
-                         "no play, so there is nothing to fit")
+        raise ValueError(
+            f"{record.source}: the input u is constant ({record.u[0]:g}): it excites "
+            "no play, so there is nothing to fit"
+        )
 
 
 def fit_mask(record: Record, fit_from) -> np.ndarray | None:
@@ -463,8 +554,9 @@ def fit_mask(record: Record, fit_from) -> np.ndarray | None:
         raise ValueError(f"`fit_from` must be a finite time, got {fit_from}")
     mask = (record.t >= fit_from).astype(float)
     if not mask.any():
-        raise ValueError(f"{record.source}: no sample at or after `fit_from` {fit_from:g} "
-                         f"(the record ends at t = {record.t[-1]:g})")
+        raise ValueError(
+            f"{record.source}: no sample at or after `fit_from` {fit_from:g} (the record ends at t = {record.t[-1]:g})"
+        )
     return mask
 
 
@@ -472,14 +564,19 @@ def _check_time_constants(taus, record: Record) -> None:
     duration = record.t[-1] - record.t[0]
     for tau in taus:
         if not tau > 0:
-            raise ValueError(f"`time_constants`: {tau:g} is not positive; a creep time constant "
-                             "must be a positive time")
+            raise ValueError(
+                f"`time_constants`: {tau:g} is not positive; a creep time constant must be a positive time"
+            )
         if tau < record.dt:
-            raise ValueError(f"`time_constants`: {tau:g} is shorter than the sampling interval "
-                             f"{record.dt:g}: such a lag cannot be told from the input itself")
+            raise ValueError(
+                f"`time_constants`: {tau:g} is shorter than the sampling interval "
+                f"{record.dt:g}: such a lag cannot be told from the input itself"
+            )
         if tau > 100 * duration:
-            raise ValueError(f"`time_constants`: {tau:g} is over 100 times the record's duration "
-                             f"{duration:g}: such a lag cannot be told from an offset")
+            raise ValueError(
+                f"`time_constants`: {tau:g} is over 100 times the record's duration "
+                f"{duration:g}: such a lag cannot be told from an offset"
+            )
 
 
 def starts_at_rest(u, fraction: float = 0.01, tolerance: float = 0.01) -> bool:

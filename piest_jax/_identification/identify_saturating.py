@@ -25,9 +25,16 @@ GRID = (16, 16)  # half-widths x centres: the input range resolved in sixteenths
 _PI_ONLY = {"lags": None, "time_constants": None, "candidates": None, "criterion": None}
 _IGNORED = {
     "gpi": {**_PI_ONLY, "positive_weights": True, "grid": None, "smoothness": None},
-    "preisach": {**_PI_ONLY, "plays": "auto", "solver": "lm", "starts": 4,
-                 "fit_initial_states": False, "max_threshold": None, "max_steps": 100,
-                 "terms": None},
+    "preisach": {
+        **_PI_ONLY,
+        "plays": "auto",
+        "solver": "lm",
+        "starts": 4,
+        "fit_initial_states": False,
+        "max_threshold": None,
+        "max_steps": 100,
+        "terms": None,
+    },
 }
 
 
@@ -54,8 +61,7 @@ def check_saturating(options: dict) -> None:
     terms, grid, smoothness = options.get("terms"), options.get("grid"), options.get("smoothness")
     if terms is not None and not _count(terms):
         raise ValueError(f"`terms` must be a positive whole number, got {terms!r}")
-    if grid is not None and not (isinstance(grid, tuple | list) and len(grid) == 2
-                                 and all(_count(g) for g in grid)):
+    if grid is not None and not (isinstance(grid, tuple | list) and len(grid) == 2 and all(_count(g) for g in grid)):
         raise ValueError(f"`grid` must be two positive whole numbers (half-widths, centres), got {grid!r}")
     if smoothness is not None and not (np.isfinite(smoothness) and smoothness >= 0):
         raise ValueError(f"`smoothness` must be finite and >= 0, got {smoothness:g}")
@@ -69,22 +75,56 @@ def _count(value) -> bool:
     return isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= 1
 
 
-def fit_saturating(record: Record, mask, *, model, plays, terms, grid, smoothness, solver, key,
-                   starts, positive_weights, initial_states, fit_initial_states, max_threshold,
-                   max_steps) -> GPIFit | PreisachFit:
+def fit_saturating(
+    record: Record,
+    mask,
+    *,
+    model,
+    plays,
+    terms,
+    grid,
+    smoothness,
+    solver,
+    key,
+    starts,
+    positive_weights,
+    initial_states,
+    fit_initial_states,
+    max_threshold,
+    max_steps,
+) -> GPIFit | PreisachFit:
     """The model fitted on `record`'s samples where `mask` is 1 (all when None)."""
     if model == "gpi":
-        return fit_gpi(record.u, record.y, plays, n_terms=TERMS if terms is None else terms,
-                       mask=mask, solver=solver, n_starts=starts, key=key,
-                       fit_initial_states=fit_initial_states, initial_states=initial_states,
-                       max_threshold=max_threshold, max_steps=max_steps)
+        return fit_gpi(
+            record.u,
+            record.y,
+            plays,
+            n_terms=TERMS if terms is None else terms,
+            mask=mask,
+            solver=solver,
+            n_starts=starts,
+            key=key,
+            fit_initial_states=fit_initial_states,
+            initial_states=initial_states,
+            max_threshold=max_threshold,
+            max_steps=max_steps,
+        )
     K, M = GRID if grid is None else grid
-    return fit_preisach(record.u, record.y, n_widths=K, n_centres=M, smoothness=smoothness,
-                        mask=mask, initial_states=initial_states, monotone=positive_weights)
+    return fit_preisach(
+        record.u,
+        record.y,
+        n_widths=K,
+        n_centres=M,
+        smoothness=smoothness,
+        mask=mask,
+        initial_states=initial_states,
+        monotone=positive_weights,
+    )
 
 
-def validation_comparison(fit: GPIFit | PreisachFit, val: Record, initial_states,
-                          fit_initial_states) -> tuple[Comparison, str]:
+def validation_comparison(
+    fit: GPIFit | PreisachFit, val: Record, initial_states, fit_initial_states
+) -> tuple[Comparison, str]:
     """The raw prediction of `val` and the states it starts from, in words.
 
     A generalized PI's plays start at the validation record's first input unless states were
@@ -92,9 +132,13 @@ def validation_comparison(fit: GPIFit | PreisachFit, val: Record, initial_states
     record's first input leaves them.
     """
     model = fit.model
-    convention = ("fitted (the identification record's)" if fit_initial_states
-                  else f"given ({initial_states:g})" if initial_states is not None
-                  else "first input")
+    convention = (
+        "fitted (the identification record's)"
+        if fit_initial_states
+        else f"given ({initial_states:g})"
+        if initial_states is not None
+        else "first input"
+    )
     if isinstance(fit, GPIFit) and not fit_initial_states:
         model = model.with_initial_states(val.u[0] if initial_states is None else initial_states)
     pred = np.asarray(model(val.u))

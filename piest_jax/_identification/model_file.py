@@ -92,17 +92,14 @@ def model_from_keys(keys, source: str = "<model>"):
         raise DataError(f"{source}: `schema` must be a non-negative integer, got {schema!r}")
     if schema > SCHEMA:
         raise DataError(
-            f"{source}: model file schema {schema} is newer than this piest_jax reads ({SCHEMA}); "
-            "upgrade piest_jax"
+            f"{source}: model file schema {schema} is newer than this piest_jax reads ({SCHEMA}); upgrade piest_jax"
         )
     name = keys.get("structure", "pi")
     if "structure" not in keys and keys.get("creep") is not None:
         # Read as a plain PI, the creep would be dropped without a word.
         raise DataError(f'{source}: it has a `creep` but no `"structure": "pi+creep"` to say it is used')
     if name not in _STRUCTURES:
-        raise DataError(
-            f"{source}: unknown model structure {name!r}; this piest_jax reads {', '.join(_STRUCTURES)}"
-        )
+        raise DataError(f"{source}: unknown model structure {name!r}; this piest_jax reads {', '.join(_STRUCTURES)}")
     return _STRUCTURES[name].from_keys(keys, source)
 
 
@@ -154,8 +151,9 @@ def read_json(path, *, max_bytes: int | None = None):
     size = path.stat().st_size
     max_bytes = MAX_JSON_BYTES if max_bytes is None else max_bytes
     if size > max_bytes:
-        raise DataError(f"{path}: {size / 2**20:.0f} MB is more than a model file holds "
-                        f"({max_bytes / 2**20:.0f} MB at most)")
+        raise DataError(
+            f"{path}: {size / 2**20:.0f} MB is more than a model file holds ({max_bytes / 2**20:.0f} MB at most)"
+        )
     try:
         return json.loads(path.read_text(), parse_int=_integer)
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -251,8 +249,12 @@ def _creep_from_keys(d: dict, source: str) -> HysteresisModel:
     _no_booleans(cr, ("time_constants", "weights", "dt", "initial_states"), source + ": creep")
     try:
         z0 = cr.get("initial_states")
-        creep = Creep(np.asarray(cr["time_constants"], float), np.asarray(cr["weights"], float),
-                      float(cr["dt"]), None if z0 is None else np.asarray(z0, float))
+        creep = Creep(
+            np.asarray(cr["time_constants"], float),
+            np.asarray(cr["weights"], float),
+            float(cr["dt"]),
+            None if z0 is None else np.asarray(z0, float),
+        )
         return HysteresisModel(pi.operator(), creep, pi.offset, float(cr["dt"]))
     except (TypeError, ValueError) as e:
         raise DataError(f"{source}: unusable creep ({' '.join(str(e).split())})") from None
@@ -284,8 +286,7 @@ def _gpi_from_keys(d: dict, source: str) -> GeneralizedPI:
     if not isinstance(g, dict) or not {"amplitudes", "centres", "scales"} <= set(g):
         raise DataError(f"{source}: `output_function` must hold amplitudes, centres and scales")
     if g.get("form", "tanh") != "tanh":
-        raise DataError(f"{source}: unknown output function form {g.get('form')!r}; "
-                        "this piest_jax reads 'tanh'")
+        raise DataError(f"{source}: unknown output function form {g.get('form')!r}; this piest_jax reads 'tanh'")
     _no_booleans(g, ("amplitudes", "centres", "scales"), source + ": output_function")
     try:
         a, c, s = (np.asarray(g[k], dtype=float) for k in ("amplitudes", "centres", "scales"))
@@ -321,8 +322,10 @@ def _preisach_from_keys(d: dict, source: str) -> Preisach:
     names = ("half_widths", "centres", "blur", "density", "offset", "initial_states")
     missing = [k for k in names[:4] if k not in d]
     if missing:
-        raise DataError(f"{source}: missing {', '.join(missing)} (a Preisach model file holds "
-                        "half_widths, centres, blur and density)")
+        raise DataError(
+            f"{source}: missing {', '.join(missing)} (a Preisach model file holds "
+            "half_widths, centres, blur and density)"
+        )
     _no_booleans(d, names, source)
     try:
         x0 = d.get("initial_states")

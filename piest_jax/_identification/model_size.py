@@ -186,8 +186,7 @@ def select_plays(
     S, split, test = holdout_split(used, holdout) if criterion == "holdout" else (T, None, None)
 
     def fit_n(n, stretch=T, **kw):
-        return fit_pi(u[:stretch], y[:stretch], n, pad_plays=padded_plays(n, largest, stretch), **kw,
-                      **fit_kwargs)
+        return fit_pi(u[:stretch], y[:stretch], n, pad_plays=padded_plays(n, largest, stretch), **kw, **fit_kwargs)
 
     n_used = int(np.sum(used > 0))
     since_best = 0
@@ -221,8 +220,15 @@ def select_plays(
         if fit.determined or len(rejected) >= len(tried) - 1:
             break
         rejected.add(chosen)
-    return ModelSize(chosen, tuple(tried), tuple(float(s) for s in scores), criterion, fit,
-                     tuple(n for n in tried if n in rejected), S)
+    return ModelSize(
+        chosen,
+        tuple(tried),
+        tuple(float(s) for s in scores),
+        criterion,
+        fit,
+        tuple(n for n in tried if n in rejected),
+        S,
+    )
 
 
 def _choose(tried, scores, rejected, tolerance):

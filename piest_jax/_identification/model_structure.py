@@ -158,12 +158,10 @@ def select_model(
         bar.close()
     while True:
         fit = fit_one(n, k, mask)
-        left = [(c, scores[c]) for c in scores
-                if c not in rejected and c != (n, k) and c[1] in lags]
+        left = [(c, scores[c]) for c in scores if c not in rejected and c != (n, k) and c[1] in lags]
         if fit.determined or not left:
             break
         rejected.add((n, k))
         n, k = pick(left)
     cands = tuple(scores)
-    return ModelChoice(n, k, cands, tuple(scores[c] for c in cands), fit,
-                       tuple(c for c in cands if c in rejected), S)
+    return ModelChoice(n, k, cands, tuple(scores[c] for c in cands), fit, tuple(c for c in cands if c in rejected), S)

@@ -100,8 +100,10 @@ def _chunk_residuals(params, states, data, scale, st: Settings):
 def _extra_residuals(params, st: Settings):
     """The residuals that hold padding (inactive) parameters in place: those of an empty record."""
     empty = jnp.zeros((0,), st.x0.dtype)
-    return _fit._residuals(params, (empty, empty, st.x0, empty, st.positive_weights, st.r_bound,
-                               st.active, st.z0, st.lag_active, st.lag_base))
+    return _fit._residuals(
+        params,
+        (empty, empty, st.x0, empty, st.positive_weights, st.r_bound, st.active, st.z0, st.lag_active, st.lag_base),
+    )
 
 
 def normal_equations(theta, unravel, data, st: Settings, theta_old=None, first=None):
@@ -198,8 +200,7 @@ def start_regression(r0, log_tau0, data, st: Settings):
         return (s, AtA + A.T @ A, Aty + A.T @ (yc * mc)), None
 
     q = r0.shape[0] + (0 if log_tau0 is None else log_tau0.shape[0]) + 1
-    init = ((st.x0, st.z0 if log_tau0 is not None else None), jnp.zeros((q, q), r0.dtype),
-            jnp.zeros(q, r0.dtype))
+    init = ((st.x0, st.z0 if log_tau0 is not None else None), jnp.zeros((q, q), r0.dtype), jnp.zeros(q, r0.dtype))
     (_, AtA, Aty), _ = lax.scan(body, init, (u, y, m))
     # Scaled to unit diagonal so that the cut-off for a rank-deficient (padded) system is relative.
     d = jnp.sqrt(jnp.where(jnp.diag(AtA) > 0, jnp.diag(AtA), 1.0))
@@ -257,9 +258,7 @@ def least_squares(params0, data, st: Settings, max_steps: int, report: bool = Fa
         return ~s.terminate & (s.steps < max_steps)
 
     def body(s):
-        hess_e, grad_e, loss_e, change = normal_equations(
-            s.y_eval, unravel, data, st, theta_old=s.y, first=s.first
-        )
+        hess_e, grad_e, loss_e, change = normal_equations(s.y_eval, unravel, data, st, theta_old=s.y, first=s.first)
         d = s.y_eval - s.y
         predicted = s.grad @ d + 0.5 * d @ (s.hess @ d)
         actual = 0.5 * (loss_e - s.loss)
@@ -276,21 +275,45 @@ def least_squares(params0, data, st: Settings, max_steps: int, report: bool = Fa
         y_eval = y - _damped_step(hess, grad, step_size)
         if report:
             jax.debug.callback(_tick, s.steps + 1)
-        return _LMState(y, y_eval, loss, grad, hess, step_size, jnp.array(False), terminate,
-                        s.steps + 1)
+        return _LMState(y, y_eval, loss, grad, hess, step_size, jnp.array(False), terminate, s.steps + 1)
 
     zero = jnp.zeros((), dtype)
-    init = _LMState(theta0, theta0, zero, jnp.zeros(p, dtype), jnp.zeros((p, p), dtype),
-                    jnp.ones((), dtype), jnp.array(True), jnp.array(False), jnp.array(0))
+    init = _LMState(
+        theta0,
+        theta0,
+        zero,
+        jnp.zeros(p, dtype),
+        jnp.zeros((p, p), dtype),
+        jnp.ones((), dtype),
+        jnp.array(True),
+        jnp.array(False),
+        jnp.array(0),
+    )
     s = lax.while_loop(cond, body, init)
-    result = optx.RESULTS.where(s.terminate, optx.RESULTS.successful,
-                                optx.RESULTS.nonlinear_max_steps_reached)
+    result = optx.RESULTS.where(s.terminate, optx.RESULTS.successful, optx.RESULTS.nonlinear_max_steps_reached)
     return unravel(s.y), s.loss, result, s.steps
 
 
-def solve_starts(r0s, un, yn, x0, mask, r_bound, *, positive_weights, fit_initial_states,
-                 max_steps, rtol, atol, active=None, z0=None, log_tau0s=None, lag_active=None,
-                 lag_base=None, chunk=None):
+def solve_starts(
+    r0s,
+    un,
+    yn,
+    x0,
+    mask,
+    r_bound,
+    *,
+    positive_weights,
+    fit_initial_states,
+    max_steps,
+    rtol,
+    atol,
+    active=None,
+    z0=None,
+    log_tau0s=None,
+    lag_active=None,
+    lag_base=None,
+    chunk=None,
+):
     """Every start (r0s (starts, n), log_tau0s (starts, K) or None) solved by the chunked
     Levenberg-Marquardt; the same arguments and returns as `fit._solve_starts`, and `chunk`, the
     samples per chunk (default `CHUNK`).
@@ -314,8 +337,7 @@ def solve_starts(r0s, un, yn, x0, mask, r_bound, *, positive_weights, fit_initia
     # well before `max_steps`.
     _BARS.append(_bar(max_steps, desc=f"fit, steps on {used.size} samples"))
     try:
-        out = _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps,
-                            chunk, scout)
+        out = _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps, chunk, scout)
         return jax.block_until_ready(out)
     finally:
         _BARS.pop().close()
@@ -328,17 +350,29 @@ def _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_step
 
     def one(r0, log_tau0, data, report):
         sol = start_regression(r0, log_tau0, data, st)
-        p0 = _fit._initial_params(r0, un, yn, st.x0, mask, st.positive_weights,
-                                  fit_initial_states, st.r_bound, st.active, st.z0, log_tau0,
-                                  st.lag_active, st.lag_base, sol=sol)
+        p0 = _fit._initial_params(
+            r0,
+            un,
+            yn,
+            st.x0,
+            mask,
+            st.positive_weights,
+            fit_initial_states,
+            st.r_bound,
+            st.active,
+            st.z0,
+            log_tau0,
+            st.lag_active,
+            st.lag_base,
+            sol=sol,
+        )
         params, loss, result, steps = least_squares(p0, data, st, max_steps, report)
         return params, jnp.where(jnp.isfinite(loss), loss, jnp.inf), result, steps
 
     if scout is None:
         return jax.vmap(lambda r0, k: one(r0, k, data, True))(r0s, log_tau0s)
     short = jax.tree.map(lambda a: a[:scout], data)
-    params, loss, results, steps = jax.vmap(lambda r0, k: one(r0, k, short, False))(r0s,
-                                                                                     log_tau0s)
+    params, loss, results, steps = jax.vmap(lambda r0, k: one(r0, k, short, False))(r0s, log_tau0s)
     best = jnp.argmin(loss)
 
     def full_loss(p):
@@ -346,10 +380,8 @@ def _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_step
         return normal_equations(theta, unravel, data, st)[2]
 
     losses = jax.vmap(full_loss)(params)
-    p, loss, result, more = least_squares(jax.tree.map(lambda a: a[best], params), data, st,
-                                          max_steps, report=True)
+    p, loss, result, more = least_squares(jax.tree.map(lambda a: a[best], params), data, st, max_steps, report=True)
     params = jax.tree.map(lambda a, b: a.at[best].set(b), params, p)
-    losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf).at[best].set(
-        jnp.where(jnp.isfinite(loss), loss, jnp.inf))
+    losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf).at[best].set(jnp.where(jnp.isfinite(loss), loss, jnp.inf))
     results = jax.tree.map(lambda a, b: b.at[best].set(a), result, results)
     return params, losses, results, steps.at[best].add(more)

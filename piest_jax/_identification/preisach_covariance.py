@@ -36,8 +36,7 @@ from . import covariance as _cov
 
 
 @eqx.filter_jit
-def score_blocks(u, e, half_widths, centres, blur, x0, keep, window: int, chunk: int,
-                 method: Method = "scan"):
+def score_blocks(u, e, half_widths, centres, blur, x0, keep, window: int, chunk: int, method: Method = "scan"):
     """Σ_t W_t W_tᵀ of the overlapping `window`-sample sums W_t of the scores g_t = B_t e_t.
 
     **Arguments:** `u` (T,) and the weighted residuals `e` (T,), normalised; the grid
@@ -57,15 +56,15 @@ def score_blocks(u, e, half_widths, centres, blur, x0, keep, window: int, chunk:
         W, tail = _cov.block_sums(tail, S[:, keep] * ee[:, None], ii, T)
         return (x, tail, blocks + W.T @ W), None
 
-    data = (_cov.chunked(u, u[-1], chunk), _cov.chunked(e, 0.0, chunk),
-            _cov.chunked(jnp.arange(T), T, chunk))
+    data = (_cov.chunked(u, u[-1], chunk), _cov.chunked(e, 0.0, chunk), _cov.chunked(jnp.arange(T), T, chunk))
     init = (x0, jnp.zeros((window, p), u.dtype), jnp.zeros((p, p), u.dtype))
     (_, _, blocks), _ = lax.scan(body, init, data)
     return blocks
 
 
-def fields(method: str, G, A, free, n: int, ete: float, y_half: float, names, blocks=None,
-           window: int | None = None) -> dict:
+def fields(
+    method: str, G, A, free, n: int, ete: float, y_half: float, names, blocks=None, window: int | None = None
+) -> dict:
     """The covariance fields (as [`PIFit`][]'s, values aside) in the data's units.
 
     **Arguments:** `method`; `G` (p, p) the data's normal matrix and `A` (p, p) with the penalty
@@ -99,6 +98,12 @@ def fields(method: str, G, A, free, n: int, ete: float, y_half: float, names, bl
     undetermined[idx] = deficient | (dof < 1)
     undetermined[-1] |= not se[-1] < _cov.RELATIVE_LIMIT * y_half
     se[undetermined] = np.inf
-    return dict(parameter_names=tuple(names), covariance=jnp.asarray(cov),
-                std_errors=jnp.asarray(se), undetermined=jnp.asarray(undetermined),
-                covariance_method=method, residual_std=sigma * y_half, effective_parameters=edf)
+    return dict(
+        parameter_names=tuple(names),
+        covariance=jnp.asarray(cov),
+        std_errors=jnp.asarray(se),
+        undetermined=jnp.asarray(undetermined),
+        covariance_method=method,
+        residual_std=sigma * y_half,
+        effective_parameters=edf,
+    )

@@ -13,8 +13,16 @@ import optimistix as optx
 SOLVERS = ("lm", "gn", "bfgs")
 # The optimistix result codes by name, looked up through the public attributes of `optx.RESULTS`.
 _RESULT_NAMES = (
-    "successful", "max_steps_reached", "nonlinear_max_steps_reached", "nonlinear_divergence",
-    "singular", "breakdown", "stagnation", "conlim", "nonfinite_input", "nonfinite",
+    "successful",
+    "max_steps_reached",
+    "nonlinear_max_steps_reached",
+    "nonlinear_divergence",
+    "singular",
+    "breakdown",
+    "stagnation",
+    "conlim",
+    "nonfinite_input",
+    "nonfinite",
 )
 
 
@@ -33,11 +41,14 @@ def check_solver(spec) -> None:
     if is_solver(spec):
         return
     if isinstance(spec, type) and issubclass(spec, optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser):
-        raise ValueError(f"`solver` is the class {spec.__name__}, not a solver: pass an instance, "
-                         f"e.g. {spec.__name__}(rtol=1e-6, atol=1e-9)")
+        raise ValueError(
+            f"`solver` is the class {spec.__name__}, not a solver: pass an instance, "
+            f"e.g. {spec.__name__}(rtol=1e-6, atol=1e-9)"
+        )
     if not isinstance(spec, str) or spec not in SOLVERS:
-        raise ValueError(f"unknown solver {spec!r}; choose one of {SOLVERS} or pass an optimistix "
-                         "least-squares solver or minimiser")
+        raise ValueError(
+            f"unknown solver {spec!r}; choose one of {SOLVERS} or pass an optimistix least-squares solver or minimiser"
+        )
 
 
 def least_squares_solver(spec, rtol: float, atol: float):

@@ -100,8 +100,9 @@ def lag_theta(log_tau, base):
     return jnp.sqrt(g)
 
 
-def initial_time_constants(n_lags: int, dt: float, duration: float, shortest: float | None = None,
-                           n_starts: int | None = None):
+def initial_time_constants(
+    n_lags: int, dt: float, duration: float, shortest: float | None = None, n_starts: int | None = None
+):
     """Starting time constants for `n_lags` creep lags, log-spaced across the record.
 
     The range runs from `shortest` (default 10 samples; the fit uses

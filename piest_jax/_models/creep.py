@@ -96,8 +96,7 @@ def check_time_constants(time_constants, name: str = "time_constants") -> Array:
         if not np.all(np.isfinite(v)) or np.any(v <= 0):
             raise ValueError(f"`{name}` must be positive and finite, got {v.tolist()}")
         return tau
-    return eqx.error_if(tau, ~jnp.all(jnp.isfinite(tau) & (tau > 0)),
-                        f"`{name}` must be positive and finite")
+    return eqx.error_if(tau, ~jnp.all(jnp.isfinite(tau) & (tau > 0)), f"`{name}` must be positive and finite")
 
 
 class Creep(eqx.Module):
@@ -140,8 +139,7 @@ class Creep(eqx.Module):
         if initial_states is None:
             self.initial_states = None
         else:
-            z0 = _checks.finite(_checks.per_play(initial_states, k, "initial_states"),
-                                "initial_states")
+            z0 = _checks.finite(_checks.per_play(initial_states, k, "initial_states"), "initial_states")
             self.initial_states = jnp.broadcast_to(z0, (k,)).astype(dtype)
         self.dt = float(dt)
         self.method = method

@@ -51,8 +51,7 @@ def _positive_vector(x, name: str) -> Array:
     return eqx.error_if(x, ~jnp.all(jnp.isfinite(x) & (x > 0)), f"`{name}` must be positive")
 
 
-def output_function(v: Array, log_amplitudes: Array, centres: Array, log_scales: Array,
-                    offset) -> Array:
+def output_function(v: Array, log_amplitudes: Array, centres: Array, log_scales: Array, offset) -> Array:
     """g(v) = offset + Σ_k a_k tanh((v - c_k)/s_k) elementwise, with a = exp(log a), s = exp(log s).
 
     **Arguments:** `v`, any shape; `log_amplitudes`, `centres`, `log_scales` (K,); `offset`.
@@ -97,8 +96,7 @@ class GeneralizedPI(eqx.Module):
         k = a.shape[0]
         for name, v in (("centres", c), ("scales", s)):
             if v.shape != (k,):
-                raise ValueError(f"`{name}` must have {k} entries (one per amplitude), got shape "
-                                 f"{v.shape}")
+                raise ValueError(f"`{name}` must have {k} entries (one per amplitude), got shape {v.shape}")
         off = _checks.as_float_array(offset, "offset")
         if off.ndim != 0:
             raise ValueError(f"`offset` must be a scalar, got shape {off.shape}")
@@ -185,10 +183,8 @@ class GeneralizedPI(eqx.Module):
         **Returns:** a new `GeneralizedPI`.
         """
         lam = 1.0 / self.scales[0]
-        pi = PIOperator(self.pi.thresholds, self.pi.weights * lam, self.pi.initial_states,
-                        method=self.pi.method)
-        return GeneralizedPI(pi, self.amplitudes, self.centres * lam, self.scales * lam,
-                             self.offset)
+        pi = PIOperator(self.pi.thresholds, self.pi.weights * lam, self.pi.initial_states, method=self.pi.method)
+        return GeneralizedPI(pi, self.amplitudes, self.centres * lam, self.scales * lam, self.offset)
 
     def inverse(self, y: SignalLike, *, n_iter: int = 80) -> Signal:
         """The input u (T,) whose output follows `y` (T,): u = P⁻¹[g⁻¹(y)], the compensator.

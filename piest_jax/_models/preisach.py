@@ -92,8 +92,9 @@ def _increasing(x: Array, name: str, strict: bool) -> Array:
     if _checks.is_concrete(x):
         d = np.diff(np.asarray(x))
         if np.any(d <= 0) if strict else np.any(d < 0):
-            raise ValueError(f"`{name}` must be {'strictly ' if strict else ''}increasing, "
-                             f"got {np.asarray(x).tolist()}")
+            raise ValueError(
+                f"`{name}` must be {'strictly ' if strict else ''}increasing, got {np.asarray(x).tolist()}"
+            )
         return x
     bad = jnp.any(jnp.diff(x) <= 0) if strict else jnp.any(jnp.diff(x) < 0)
     return eqx.error_if(x, bad, f"`{name}` must be increasing")
@@ -131,16 +132,18 @@ class Preisach(eqx.Module):
     blur: Centres
     method: str = eqx.field(static=True)
 
-    def __init__(self, half_widths, centres, density, offset=0.0, initial_states=None,
-                 blur=None, method: Method = "scan"):
+    def __init__(
+        self, half_widths, centres, density, offset=0.0, initial_states=None, blur=None, method: Method = "scan"
+    ):
         r = _checks.thresholds(_vector(half_widths, "half_widths"), "half_widths")
         r = _increasing(r, "half_widths", strict=False)
         c = _increasing(_vector(centres, "centres"), "centres", strict=True)
         k, m = r.shape[0], c.shape[0]
         mu = _checks.as_float_array(density, "density")
         if mu.shape != (k, m):
-            raise ValueError(f"`density` must have shape (K, M) = ({k}, {m}) for {k} half-widths "
-                             f"and {m} centres, got {mu.shape}")
+            raise ValueError(
+                f"`density` must have shape (K, M) = ({k}, {m}) for {k} half-widths and {m} centres, got {mu.shape}"
+            )
         mu = _checks.finite(mu, "density")
         off = _checks.as_float_array(offset, "offset")
         if off.ndim != 0:
@@ -173,8 +176,7 @@ class Preisach(eqx.Module):
         if initial_states is None:
             self.initial_states = None
         else:
-            x0 = _checks.finite(_checks.per_play(initial_states, k, "initial_states"),
-                                "initial_states")
+            x0 = _checks.finite(_checks.per_play(initial_states, k, "initial_states"), "initial_states")
             self.initial_states = jnp.broadcast_to(x0, (k,)).astype(dtype)
         self.method = method
 
@@ -197,8 +199,7 @@ class Preisach(eqx.Module):
         """
         u = _checks.signal(u)
         u = u.astype(jnp.result_type(u, self.density))
-        return play(u, self.half_widths.astype(u.dtype), self._start(u).astype(u.dtype),
-                    method=self.method)
+        return play(u, self.half_widths.astype(u.dtype), self._start(u).astype(u.dtype), method=self.method)
 
     def basis(self, u: SignalLike) -> Float[Array, "time cells"]:
         """The blurred relay outputs s_km (T, K·M), so that y = offset + basis(u) @ density.ravel().
@@ -224,8 +225,7 @@ class Preisach(eqx.Module):
 
         **Returns:** a new `Preisach`.
         """
-        return Preisach(self.half_widths, self.centres, self.density, self.offset, play_states,
-                        self.blur, self.method)
+        return Preisach(self.half_widths, self.centres, self.density, self.offset, play_states, self.blur, self.method)
 
     def final_states(self, u: SignalLike) -> Float[Array, " widths"]:
         """The plays' states after the last sample of `u` (to continue a run where it ended).
@@ -297,8 +297,10 @@ class Preisach(eqx.Module):
         mu = self.density
         if _checks.is_concrete(mu):
             if np.any(np.asarray(mu) < 0):
-                raise ValueError("this Preisach model cannot be inverted: its density has negative "
-                                 "entries (fit with monotone=True for an invertible model)")
+                raise ValueError(
+                    "this Preisach model cannot be inverted: its density has negative "
+                    "entries (fit with monotone=True for an invertible model)"
+                )
         else:
             mu = eqx.error_if(mu, jnp.any(mu < 0), "a negative density cannot be inverted")
         return _inverse(eqx.tree_at(lambda m: m.density, self, mu), y, n_iter)
@@ -311,6 +313,7 @@ def _inverse(model: Preisach, y, n_iter: int):
     mu = model.density
     if model.initial_states is None:
         lo, hi = model.input_range()
+
         # Relaxed plays sit at the input itself: bisection with x = u for every play.
         def f0(u):
             s = jnp.clip((u - model.centres) / model.blur, -1.0, 1.0)

@@ -39,9 +39,7 @@ def _cumulative_weights(r, w):
             )
         return W
     bad = (r[0] != 0) | jnp.any(W <= 0)
-    return eqx.error_if(
-        W, bad, "the PI operator is not invertible: need r_1 = 0 and cumulative weights > 0"
-    )
+    return eqx.error_if(W, bad, "the PI operator is not invertible: need r_1 = 0 and cumulative weights > 0")
 
 
 def _admissible(r, x):

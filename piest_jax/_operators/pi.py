@@ -75,9 +75,7 @@ class PIOperator(AbstractHysteresisOperator):
         dtype = jnp.result_type(r, w, x0)
         self.thresholds = r.astype(dtype)
         self.weights = _checks.finite(w, "weights").astype(dtype)
-        self.initial_states = jnp.broadcast_to(_checks.finite(x0, "initial_states"), (n,)).astype(
-            dtype
-        )
+        self.initial_states = jnp.broadcast_to(_checks.finite(x0, "initial_states"), (n,)).astype(dtype)
         self.method = method
 
     @property

@@ -40,4 +40,3 @@ def check_names(names) -> None:
     for n in names:
         if n not in EFFECT:
             raise ValueError(f"unknown effect {n!r}; choose from {EFFECTS}")
-

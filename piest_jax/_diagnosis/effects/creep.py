@@ -16,13 +16,12 @@ N_CREEP = 5  # creep modes, log-spaced from a third of the input's period to the
 def lowpass(v, lam):
     """First-order low-pass y_t = lam y_{t-1} + (1 - lam) v_t, starting at v_0; `lam` (k,) -> (T, k)."""
     v = np.asarray(v, float)
-    return np.column_stack(
-        [_signal.lfilter([1 - a], [1.0, -a], v, zi=[a * v[0]])[0] for a in np.asarray(lam, float)]
-    )
+    return np.column_stack([_signal.lfilter([1 - a], [1.0, -a], v, zi=[a * v[0]])[0] for a in np.asarray(lam, float)])
 
 
 def lowpass_jax(v, lam):
     """The low-pass of `lowpass`, traceable in `lam` (k,): (T, k)."""
+
     def step(y, vt):
         y = lam * y + (1 - lam) * vt
         return y, y

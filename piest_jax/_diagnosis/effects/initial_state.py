@@ -69,4 +69,3 @@ class InitialState(AbstractEffect):
 
     def synth_input(self, state, ctx, chain):
         chain.x0 = plays(state["pre"], ctx.r, np.zeros((1, len(ctx.r))))[0, -1]
-

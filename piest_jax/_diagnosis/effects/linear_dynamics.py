@@ -81,8 +81,12 @@ class LinearDynamics(AbstractEffect):
         f = refinement_factor(level)
         if q[0] == "first":
             return [("first", q[1] / f), ("first", q[1] * f)]
-        return [("second", q[1] / f, q[2]), ("second", q[1] * f, q[2]),
-                ("second", q[1], q[2] / f), ("second", q[1], min(q[2] * f, 1.5))]
+        return [
+            ("second", q[1] / f, q[2]),
+            ("second", q[1] * f, q[2]),
+            ("second", q[1], q[2] / f),
+            ("second", q[1], min(q[2] * f, 1.5)),
+        ]
 
     def describe(self, q):
         if q[0] == "first":

@@ -41,8 +41,11 @@ class OffsetDrift(AbstractEffect):
         d = prng.uniform(0.04, 0.1) * ctx.span0
         kind = str(prng.choice(["ramp", "warm-up", "oscillation"]))
         s = ctx.t / ctx.t[-1]
-        shape = {"ramp": s, "warm-up": 1 - np.exp(-s / prng.uniform(0.1, 0.3)),
-                 "oscillation": np.sin(2 * np.pi * s * prng.uniform(0.5, 1.5) + prng.uniform(0, 6))}[kind]
+        shape = {
+            "ramp": s,
+            "warm-up": 1 - np.exp(-s / prng.uniform(0.1, 0.3)),
+            "oscillation": np.sin(2 * np.pi * s * prng.uniform(0.5, 1.5) + prng.uniform(0, 6)),
+        }[kind]
         return {"form": kind, "drift": d * shape * prng.choice([-1, 1])}
 
     def synth_output(self, state, ctx, v, y):

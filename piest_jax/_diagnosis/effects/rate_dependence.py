@@ -63,8 +63,10 @@ class RateDependence(AbstractEffect):
         b = prng.uniform(0.5, 1.2)
         if prng.random() < 0.5:
             return {"form": "thresholds proportional to 1 + b|du/dt|", "rt": ctx.r[None, :] * (1 + b * rate[:, None])}
-        return {"form": "thresholds grow with sqrt|du/dt|",
-                "rt": ctx.r[None, :] + b * 0.15 * ctx.amp * np.sqrt(rate)[:, None]}
+        return {
+            "form": "thresholds grow with sqrt|du/dt|",
+            "rt": ctx.r[None, :] + b * 0.15 * ctx.amp * np.sqrt(rate)[:, None],
+        }
 
     def synth_input(self, state, ctx, chain):
         chain.rt = state["rt"]

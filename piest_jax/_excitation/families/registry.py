@@ -18,8 +18,16 @@ from .touch import Touch
 from .triangle import Triangle
 
 _REGISTERED: tuple[AbstractInputFamily, ...] = (
-    Sine(), Multisine(), Noise(), Chirp(), Triangle(), Decaying(), Steps(),
-    Ramp(), Touch(), Nested(),
+    Sine(),
+    Multisine(),
+    Noise(),
+    Chirp(),
+    Triangle(),
+    Decaying(),
+    Steps(),
+    Ramp(),
+    Touch(),
+    Nested(),
 )
 
 FAMILY: dict[str, AbstractInputFamily] = {f.name: f for f in _REGISTERED}

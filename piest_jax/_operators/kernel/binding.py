@@ -128,8 +128,7 @@ def _suffix(x: Array) -> str:
         return _DTYPES[jnp.dtype(x.dtype)]
     except KeyError:
         raise ValueError(
-            f"the play kernel supports float32 and float64, got {x.dtype}; "
-            "cast the input or use method='scan'"
+            f"the play kernel supports float32 and float64, got {x.dtype}; cast the input or use method='scan'"
         ) from None
 
 
@@ -141,12 +140,9 @@ def _code_bytes(n: int, dtype) -> int:
 def _call(kind: str, x: Array, shapes, *args):
     if not available():
         raise RuntimeError(
-            f"piest_jax: the compiled play kernel is not available ({_IMPORT_ERROR}); "
-            "use method='scan' or 'auto'"
+            f"piest_jax: the compiled play kernel is not available ({_IMPORT_ERROR}); use method='scan' or 'auto'"
         )
-    return jax.ffi.ffi_call(
-        f"piest_{kind}_{_suffix(x)}", shapes, vmap_method="broadcast_all"
-    )(*args)
+    return jax.ffi.ffi_call(f"piest_{kind}_{_suffix(x)}", shapes, vmap_method="broadcast_all")(*args)
 
 
 def _sds(shape, dtype):
@@ -165,8 +161,7 @@ def _validate(u: Array, r: Array, **per_play: Array) -> None:
             raise ValueError(f"the play kernel needs `{name}` of shape {r.shape}, got {a.shape}")
         if a.dtype != u.dtype:
             raise ValueError(
-                f"the play kernel needs one dtype for all arguments: u is {u.dtype}, "
-                f"`{name}` is {a.dtype}"
+                f"the play kernel needs one dtype for all arguments: u is {u.dtype}, `{name}` is {a.dtype}"
             )
 
 
