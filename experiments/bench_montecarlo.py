@@ -181,7 +181,7 @@ def main(argv=None) -> int:
     res, row = _timed(key, draws, s, chunk)
     row["first_call_seconds"] = first["seconds"]
     row["windows_per_draw"] = (T - s.window) // s.stride + 1
-    summary = summarise(res, s)
+    summary = summarise(res)
     row["map"] = {
         k: summary[k]
         for k in (

@@ -52,23 +52,23 @@ def study(args) -> dict:
     s = pj.make_settings(n_samples=args.samples, window=args.window, dtype="float64", **chosen)
     key = jax.random.key(args.seed)
     res = pj.pe_map(key, args.draws, s, start=args.start, settle=True, quiet=True)
-    summary = pj.summarise(res, s)
+    summary = pj.summarise(res)
     tol, band = pj.numerical_tolerance("float64"), pj.settle_band(s.n_samples, s.n_plays, s.dtype)
-    raw_pe = res["c1_normalised"] > tol
-    float_exact = res["exact_level"] > tol
-    settled, pe = res["settled"], res["pe"]
+    raw_pe = res.c1_normalised > tol
+    float_exact = res.exact_level > tol
+    settled, pe = res.settled, res.pe
     rows = []
     overturned = np.flatnonzero(settled & ((float_exact != pe) | (raw_pe != pe)))
     for i in overturned:
         rows.append(
             dict(
                 draw=args.start + int(i),
-                family=pj.INPUT_FAMILIES[int(res["family"][i])],
+                family=pj.INPUT_FAMILIES[int(res.family[i])],
                 pe=bool(pe[i]),
                 float_exact_condition=bool(float_exact[i]),
                 raw_gram_pe=bool(raw_pe[i]),
-                event_level=float(res["exact_level"][i]),
-                raw_level=float(res["c1_normalised"][i]),
+                event_level=float(res.exact_level[i]),
+                raw_level=float(res.c1_normalised[i]),
             )
         )
     rng = np.random.default_rng(args.seed + args.start)
@@ -84,11 +84,11 @@ def study(args) -> dict:
                 draw=args.start + int(i),
                 pe_exact_rational=truth,
                 map_pe=bool(pe[i]),
-                map_exact_condition=bool(res["exact"][i]),
+                map_exact_condition=bool(res.exact[i]),
             )
         )
-    deficient = res["exact_level"][settled & ~pe]
-    full = res["exact_level"][settled & pe]
+    deficient = res.exact_level[settled & ~pe]
+    full = res.exact_level[settled & pe]
     return dict(
         seed=args.seed,
         start=args.start,
@@ -98,7 +98,7 @@ def study(args) -> dict:
         band=band,
         settled=int(settled.sum()),
         pe=int(pe.sum()),
-        exact_condition_holds=int(res["exact"].sum()),
+        exact_condition_holds=int(res.exact.sum()),
         exact_condition_mismatches=dict(
             holds_but_not_pe=summary["sharper_holds_not_pe"], fails_but_pe=summary["sharper_fails_pe"]
         ),
@@ -111,14 +111,14 @@ def study(args) -> dict:
             r["pe_exact_rational"] != r["map_pe"] or r["pe_exact_rational"] != r["map_exact_condition"]
             for r in check_rows
         ),
-        seconds=float(res["seconds"]),
-        settle_seconds=float(res["settle_seconds"]),
+        seconds=float(res.seconds),
+        settle_seconds=float(res.settle_seconds),
         check_seconds=time.perf_counter() - t0,
         per_family={
             f: dict(
-                draws=int((res["family"] == j).sum()),
-                settled=int((settled & (res["family"] == j)).sum()),
-                pe=int((pe & (res["family"] == j)).sum()),
+                draws=int((res.family == j).sum()),
+                settled=int((settled & (res.family == j)).sum()),
+                pe=int((pe & (res.family == j)).sum()),
             )
             for j, f in enumerate(pj.INPUT_FAMILIES)
             if j in s.families

@@ -79,6 +79,7 @@ _EXPORTS = {
     "excitation_figure": ("._excitation.design_compare", "excitation_figure"),
     "draw_statistics": ("._excitation.draw_metrics", "draw_statistics"),
     "summarise": ("._excitation.map_report", "summarise"),
+    "PEMap": ("._excitation.map_result", "PEMap"),
     "MapSettings": ("._excitation.map_settings", "MapSettings"),
     "make_settings": ("._excitation.map_settings", "make_settings"),
     "numerical_tolerance": ("._excitation.map_settings", "numerical_tolerance"),
@@ -219,6 +220,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.families import draw_case as draw_case
     from ._excitation.map_figure import pe_map_figure as pe_map_figure
     from ._excitation.map_report import summarise as summarise
+    from ._excitation.map_result import PEMap as PEMap
     from ._excitation.map_settings import MapSettings as MapSettings
     from ._excitation.map_settings import make_settings as make_settings
     from ._excitation.map_settings import numerical_tolerance as numerical_tolerance

@@ -120,27 +120,27 @@ def _case(settings, i):
 
 @pytest.mark.parametrize("i", [0, 16, 25, 34])  # sine, noise, triangle, steps
 def test_draws_match_numpy_reference(pemap, settings, i):
-    assert FAMILIES[pemap["family"][i]] == FAMILIES[i % 7]
+    assert FAMILIES[pemap.family[i]] == FAMILIES[i % 7]
     u, r, x0, w = _case(settings, i)
     # drawn here op by op, in the engine fused: the same numbers up to rounding
-    np.testing.assert_allclose(pemap["thresholds"][i], r, rtol=1e-13)
+    np.testing.assert_allclose(pemap.thresholds[i], r, rtol=1e-13)
     ref = _reference(u, r, x0, w, settings)
-    np.testing.assert_allclose(pemap["rho"][i], ref["rho"], rtol=1e-12)
-    np.testing.assert_allclose(pemap["c1"][i], ref["c1"], atol=1e-10 * ref["scale"])
-    np.testing.assert_allclose(pemap["c1_normalised"][i], ref["c1_normalised"], atol=1e-10)
-    np.testing.assert_allclose(pemap["gram_scale"][i], ref["scale"], rtol=1e-12)
-    np.testing.assert_array_equal(pemap["excited"][i], ref["excited"])
-    assert pemap["min_excited"][i] == ref["min_excited"]
-    assert pemap["sharper"][i] == ref["sharper"]
-    np.testing.assert_allclose(pemap["weight_error"][i], ref["weight_error"], rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(pemap.rho[i], ref["rho"], rtol=1e-12)
+    np.testing.assert_allclose(pemap.c1[i], ref["c1"], atol=1e-10 * ref["scale"])
+    np.testing.assert_allclose(pemap.c1_normalised[i], ref["c1_normalised"], atol=1e-10)
+    np.testing.assert_allclose(pemap.gram_scale[i], ref["scale"], rtol=1e-12)
+    np.testing.assert_array_equal(pemap.excited[i], ref["excited"])
+    assert pemap.min_excited[i] == ref["min_excited"]
+    assert pemap.sharper[i] == ref["sharper"]
+    np.testing.assert_allclose(pemap.weight_error[i], ref["weight_error"], rtol=1e-5, atol=1e-9)
     for k in ("samples_to_1pct", "worst_samples_to_1pct", "guaranteed_samples_to_1pct"):
-        assert pemap[k][i] == ref[k], k
-    np.testing.assert_allclose(pemap["worst_error"][i], ref["worst_error"], rtol=1e-8)
-    np.testing.assert_allclose(pemap["guaranteed_error"][i], ref["guaranteed_error"], rtol=1e-8)
+        assert getattr(pemap, k)[i] == ref[k], k
+    np.testing.assert_allclose(pemap.worst_error[i], ref["worst_error"], rtol=1e-8)
+    np.testing.assert_allclose(pemap.guaranteed_error[i], ref["guaranteed_error"], rtol=1e-8)
 
 
 def test_map_counts(pemap, settings):
-    s = pj.summarise(pemap, settings)
+    s = pj.summarise(pemap)
     assert s["n"] == N_DRAWS
     # the map covers both sides of Assumption 1 and both outcomes
     assert 0 < s["assumption_holds"] < N_DRAWS and 0 < s["pe"] < N_DRAWS
@@ -154,13 +154,13 @@ def test_map_counts(pemap, settings):
     assert sum(f["n"] for f in s["per_family"].values()) == N_DRAWS
     # the margin is a lower bound on c1 for every draw, positive exactly where the condition holds
     assert s["margin"]["violations"] == 0
-    assert np.all((pemap["margin"] > 0) == pemap["exact"])
-    assert np.all(pemap["margin"] <= pemap["c1"] + s["tolerance"] * pemap["gram_scale"])
+    assert np.all((pemap.margin > 0) == pemap.exact)
+    assert np.all(pemap.margin <= pemap.c1 + s["tolerance"] * pemap.gram_scale)
     # measured error <= its worst case over weights <= the margins' guarantee, and the times too
     conv = s["convergence"]
     assert conv["violations"] == 0
     assert 0 < conv["guaranteed_1pct"] <= conv["worst_case_reached_1pct"] <= conv["reached_1pct"]
-    g, w = pemap["guaranteed_samples_to_1pct"], pemap["worst_samples_to_1pct"]
+    g, w = pemap.guaranteed_samples_to_1pct, pemap.worst_samples_to_1pct
     assert np.all(w[g > 0] <= g[g > 0]) and np.all(w[g > 0] > 0)
 
 
@@ -259,9 +259,9 @@ def test_sharper_condition_public():
 def test_same_seed_same_map_other_seed_differs(pemap, settings):
     again = pj.pe_map(jax.random.key(SEED), N_DRAWS, settings, chunk=CHUNK, quiet=True)
     for k in ("rho", "c1", "excited", "weight_error", "family"):
-        np.testing.assert_array_equal(again[k], pemap[k])
+        np.testing.assert_array_equal(getattr(again, k), getattr(pemap, k))
     other = pj.pe_map(jax.random.key(SEED + 1), CHUNK, settings, chunk=CHUNK, quiet=True)
-    same = np.all(other["thresholds"] == pemap["thresholds"][:CHUNK], axis=1)
+    same = np.all(other.thresholds == pemap.thresholds[:CHUNK], axis=1)
     assert not same.any()
 
 
@@ -282,8 +282,8 @@ def test_chunking_invariance(pemap, settings):
     # draws 42..132 as a chunk of 84 and a padded one of 7 (the same compiled program); the
     # fixture's chunks split them at 84
     part = pj.pe_map(jax.random.key(SEED), 91, settings, chunk=CHUNK, start=42, quiet=True)
-    assert part["rho"].shape == (91,)
-    _assert_same_map(part, {k: v[42:133] for k, v in pemap.items() if k != "seconds"})
+    assert part.rho.shape == (91,)
+    _assert_same_map(part.arrays(), {k: v[42:133] for k, v in pemap.arrays().items()})
     with pytest.raises(ValueError, match="`start` must be a non-negative multiple of 7"):
         pj.pe_map(jax.random.key(SEED), 50, settings, start=5)
 
@@ -313,7 +313,7 @@ def test_sharded_equals_single_device(pemap, settings, tmp_path):
         out = fn(jax.device_put(pj.draw_keys(jax.random.key({SEED}), 0, 56), sharding))
         assert len(out["rho"].sharding.device_set) == 4
         res = pj.pe_map(jax.random.key({SEED}), {N_DRAWS}, s, chunk=56, quiet=True)
-        np.savez(r"{tmp_path / "sharded.npz"}", **{{k: v for k, v in res.items() if k != "seconds"}})
+        np.savez(r"{tmp_path / "sharded.npz"}", **res.arrays())
         """
     )
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
@@ -321,7 +321,7 @@ def test_sharded_equals_single_device(pemap, settings, tmp_path):
     proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     sharded = np.load(tmp_path / "sharded.npz")
-    _assert_same_map(sharded, _cpu_map(pemap, settings))
+    _assert_same_map(sharded, _cpu_map(pemap, settings).arrays())
 
 
 def test_many_windows_on_two_devices_finish(tmp_path):
@@ -335,7 +335,7 @@ def test_many_windows_on_two_devices_finish(tmp_path):
         assert len(jax.devices()) == 2, jax.devices()
         s = pj.make_settings(n_samples=600, n_plays=10, window=30, stride=1, dt=0.01)
         res = pj.pe_map(jax.random.key(3), 28, s, chunk=28, quiet=True)
-        np.savez(r"{tmp_path / "two.npz"}", **{{k: v for k, v in res.items() if k != "seconds"}})
+        np.savez(r"{tmp_path / "two.npz"}", **res.arrays())
         """
     )
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
@@ -350,11 +350,11 @@ def test_many_windows_on_two_devices_finish(tmp_path):
     two = np.load(tmp_path / "two.npz")
     # (which plays count as moving is a tolerance decision on sums that another compilation may
     # round differently; the map's own values must agree)
-    np.testing.assert_array_equal(two["thresholds"], one["thresholds"])
+    np.testing.assert_array_equal(two["thresholds"], one.thresholds)
     for k in ("rho", "c1_normalised", "gram_scale"):
-        np.testing.assert_allclose(two[k], one[k], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(two[k], getattr(one, k), rtol=1e-12, atol=1e-15)
     tol = pj.numerical_tolerance("float64")
-    np.testing.assert_array_equal(two["c1_normalised"] > tol, one["c1_normalised"] > tol)
+    np.testing.assert_array_equal(two["c1_normalised"] > tol, one.c1_normalised > tol)
 
 
 def test_batch_as_one_vmap_equals_the_loop(pemap, settings):
@@ -362,8 +362,8 @@ def test_batch_as_one_vmap_equals_the_loop(pemap, settings):
     keys = pj.draw_keys(jax.random.key(SEED), 0, 14)
     out = jax.jit(lambda k: M._local_batch(k, settings, loop=False))(keys)
     _assert_same_map(
-        {k: np.asarray(v) for k, v in out.items()} | {"family": pemap["family"][:14]},
-        {k: v[:14] for k, v in pemap.items() if k != "seconds"},
+        {k: np.asarray(v) for k, v in out.items()} | {"family": pemap.family[:14]},
+        {k: v[:14] for k, v in pemap.arrays().items()},
     )
 
 
@@ -383,7 +383,7 @@ def test_settings_errors():
         pj.pe_map(jax.random.key(0), 0, s)
 
 
-def test_cli_writes_map(tmp_path, pemap, capsys):
+def test_cli_writes_map(tmp_path, pemap, settings, capsys):
     out = tmp_path / "map"
     args = ["montecarlo", "--inputs", str(CHUNK), "--samples", "600", "--seed", str(SEED)]
     args += ["--plays", "4", "--window", "150", "--stride", "15", "--dt", "0.01"]
@@ -395,9 +395,16 @@ def test_cli_writes_map(tmp_path, pemap, capsys):
     for k in ("n_inputs", "theorem_violations", "pe_fraction_below_assumption", "seconds"):
         assert k in rep
     assert rep["n_inputs"] == CHUNK and rep["tolerance"] == pj.numerical_tolerance("float64")
-    np.testing.assert_array_equal(rep["draws"]["rho"], pemap["rho"][:CHUNK])
-    pe = pemap["c1_normalised"][:CHUNK] > rep["tolerance"]
-    assert rep["theorem_violations"] == int(np.sum((pemap["rho"][:CHUNK] >= 1) & ~pe))
+    np.testing.assert_array_equal(rep["draws"]["rho"], pemap.rho[:CHUNK])
+    pe = pemap.c1_normalised[:CHUNK] > rep["tolerance"]
+    assert rep["theorem_violations"] == int(np.sum((pemap.rho[:CHUNK] >= 1) & ~pe))
+    # The command writes what the library call returns (less the timings), plus the seed.
+    lib = pj.pe_map(jax.random.key(SEED), CHUNK, settings, quiet=True)
+    want = json.loads(pj.write_json(tmp_path / "lib.json", lib.to_json()).read_text())
+    assert rep.pop("seed") == SEED
+    for r in (rep, want):
+        r.pop("seconds"), r["settling"].pop("seconds")
+    assert rep == want
     # refuses to overwrite without --force
     assert main(args + ["--out", str(out), "--quiet"]) == 2
 

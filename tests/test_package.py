@@ -234,14 +234,24 @@ def _figure_calls():
         "guaranteed_error": rng.uniform(1e-4, 1, 20),
         "samples_to_1pct": rng.integers(-1, 100, 20),
         "guaranteed_samples_to_1pct": rng.integers(-1, 100, 20),
+        "worst_samples_to_1pct": rng.integers(-1, 100, 20),
+        "gram_scale": rng.uniform(1, 10, 20),
+        "excited": rng.uniform(size=(20, 3, 4)) > 0.5,
+        "min_excited": rng.integers(0, 5, 20),
+        "redundant": rng.integers(0, 3, 20),
+        "zero_frozen": rng.uniform(size=20) > 0.9,
+        "twin_triple": rng.uniform(size=20) > 0.9,
+        "exact_level": rng.uniform(1e-12, 1e-3, 20),
+        "thresholds": np.sort(rng.uniform(0, 1, (20, 4)), axis=1),
     }
+    pe_map = pj.PEMap(settings=settings, start=0, devices=("cpu",), settled=None, seconds=1.0, **draws)
     return {
         "fit_figure": lambda: pj.fit_figure(rec, 0.9 * y, title="fit", mask=mask),
         "compensation_figure": lambda: pj.compensation_figure(t, y, u),
         "loop_figure": lambda: pj.loop_figure(t, u, y, np.column_stack([u, 0.5 * u]), [0.0, 0.5]),
         "diagnosis_figure": lambda: pj.diagnosis_figure(diagnosis),
         "online_estimate_figure": lambda: pj.online_estimate_figure(online, title="rls", t0=1.0),
-        "pe_map_figure": lambda: pj.pe_map_figure(draws, settings),
+        "pe_map_figure": lambda: pj.pe_map_figure(pe_map),
         "paper.figure": lambda: pj.paper.figure(_fake_report()),
     }
 

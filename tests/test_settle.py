@@ -50,33 +50,33 @@ def truth(settings):
 
 def test_settled_verdicts_are_the_rational_rank_on_every_draw(settled, settings, truth):
     # Both kinds of draw are in the map, and most that are not PE needed settling.
-    assert 0 < truth.sum() < N_DRAWS and settled["settled"].sum() >= np.sum(~truth)
-    np.testing.assert_array_equal(settled["pe"], truth)
-    np.testing.assert_array_equal(settled["exact"], truth)
-    report = pj.summarise(settled, settings)
+    assert 0 < truth.sum() < N_DRAWS and settled.settled.sum() >= np.sum(~truth)
+    np.testing.assert_array_equal(settled.pe, truth)
+    np.testing.assert_array_equal(settled.exact, truth)
+    report = pj.summarise(settled)
     assert report["exact_condition"]["violations"] == 0
-    assert report["settling"]["done"] and report["settling"]["settled"] == settled["settled"].sum()
+    assert report["settling"]["done"] and report["settling"]["settled"] == settled.settled.sum()
     assert report["pe"] == truth.sum()
 
 
 def test_unsettled_draws_are_above_the_band_with_agreeing_verdicts(settled, settings):
     band = pj.settle_band(settings.n_samples, settings.n_plays, settings.dtype)
-    free = ~settled["settled"]
+    free = ~settled.settled
     assert free.any()
-    assert np.all(settled["exact_level"][free] >= band)
-    raw = settled["c1_normalised"] > pj.numerical_tolerance("float64")
-    np.testing.assert_array_equal(raw[free], settled["exact"][free])
-    np.testing.assert_array_equal(S.needs_settling(settled, settings), settled["settled"])
+    assert np.all(settled.exact_level[free] >= band)
+    raw = settled.c1_normalised > pj.numerical_tolerance("float64")
+    np.testing.assert_array_equal(raw[free], settled.exact[free])
+    np.testing.assert_array_equal(pj.needs_settling(settled), settled.settled)
 
 
 def test_an_unsettled_map_keeps_the_float_verdicts(settled, settings):
     plain = pj.pe_map(jax.random.key(SEED), N_DRAWS, settings, quiet=True)
-    assert "settled" not in plain and not pj.summarise(plain, settings)["settling"]["done"]
-    np.testing.assert_array_equal(plain["pe"], plain["c1_normalised"] > pj.numerical_tolerance("float64"))
+    assert plain.settled is None and not pj.summarise(plain)["settling"]["done"]
+    np.testing.assert_array_equal(plain.pe, plain.c1_normalised > pj.numerical_tolerance("float64"))
     # Settling only ever changes the draws it settles.
-    free = ~settled["settled"]
-    np.testing.assert_array_equal(plain["pe"][free], settled["pe"][free])
-    np.testing.assert_array_equal(plain["exact"][free], settled["exact"][free])
+    free = ~settled.settled
+    np.testing.assert_array_equal(plain.pe[free], settled.pe[free])
+    np.testing.assert_array_equal(plain.exact[free], settled.exact[free])
 
 
 def test_settling_judges_the_floats_the_map_drew(settings):
@@ -158,7 +158,7 @@ def test_cli_settle_writes_exact_verdicts(tmp_path, settled):
     ]
     assert main(args) == 0
     rep = json.loads((out / "pe_map.json").read_text())
-    np.testing.assert_array_equal(rep["draws"]["pe"], settled["pe"])
-    np.testing.assert_array_equal(rep["draws"]["settled"], settled["settled"])
-    assert rep["settling"]["settled"] == int(settled["settled"].sum())
+    np.testing.assert_array_equal(rep["draws"]["pe"], settled.pe)
+    np.testing.assert_array_equal(rep["draws"]["settled"], settled.settled)
+    assert rep["settling"]["settled"] == int(settled.settled.sum())
     assert rep["exact_condition"]["violations"] == 0

@@ -60,10 +60,10 @@ N_DRAWS = 1400 if SMALL else 14_000  # a multiple of the 7 families
 settings = pj.make_settings(n_samples=1000, n_plays=5, window=200, stride=20)
 res = pj.pe_map(jax.random.key(2021), N_DRAWS, settings, quiet=True)
 tol = pj.numerical_tolerance(settings.dtype)
-a1 = res["rho"] >= 1
-pe = res["c1_normalised"] > tol
-sharp = res["sharper"]
-print(f"{N_DRAWS} draws in {res['seconds']:.1f} s (including compilation)")
+a1 = res.rho >= 1
+pe = res.c1_normalised > tol
+sharp = res.sharper
+print(f"{N_DRAWS} draws in {res.seconds:.1f} s (including compilation)")
 
 
 def confusion(cond, name):
@@ -89,12 +89,12 @@ confusion(sharp, "sharper condition")
 # is, which is only observed.
 
 # %%
-c1n = np.maximum(res["c1_normalised"], 1e-18)
-err = np.maximum(res["weight_error"], 1e-18)
+c1n = np.maximum(res.c1_normalised, 1e-18)
+err = np.maximum(res.weight_error, 1e-18)
 fig, (a1x, a2x) = plt.subplots(1, 2, figsize=(11, 4))
 for k, fam in enumerate(pj.INPUT_FAMILIES):
-    sel = res["family"] == k
-    a1x.loglog(res["rho"][sel], c1n[sel], ".", ms=2, label=fam)
+    sel = res.family == k
+    a1x.loglog(res.rho[sel], c1n[sel], ".", ms=2, label=fam)
 a1x.axvline(1, color="k", lw=0.8, ls=":")
 a1x.axhline(tol, color="r", lw=0.8, ls=":")
 a1x.set(
@@ -113,7 +113,7 @@ fig.tight_layout()
 # %%
 print(f"{'family':<10}{'draws':>7}{'A1':>7}{'sharper':>9}{'PE':>7}{'median RLS error':>18}")
 for k, fam in enumerate(pj.INPUT_FAMILIES):
-    sel = res["family"] == k
+    sel = res.family == k
     if not sel.any():
         continue
     print(
@@ -176,7 +176,7 @@ script = textwrap.dedent(f"""
     s = pj.make_settings(n_samples=1000, n_plays=5, window=200, stride=20)
     res = pj.pe_map(jax.random.key(2021), {N_SHARDED}, s, chunk=350, quiet=True)
     print("devices:", len(jax.devices()), "mesh:", dict(pj.mesh_sharding(jax.devices()).mesh.shape))
-    np.savez("sharded_map.npz", **{{k: v for k, v in res.items() if k != "seconds"}})
+    np.savez("sharded_map.npz", **res.arrays())
 """)
 env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
 proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
@@ -186,11 +186,12 @@ with np.load("sharded_map.npz") as f:
 os.remove("sharded_map.npz")
 rows = slice(0, N_SHARDED)
 exact = [k for k in sharded if sharded[k].dtype.kind in "biu"]
-same = all(np.array_equal(sharded[k], res[k][rows]) for k in exact)
+same = all(np.array_equal(sharded[k], getattr(res, k)[rows]) for k in exact)
 print(f"identical on 4 devices and on 1: {same} ({', '.join(exact)})")
 print("PE decisions identical:", np.array_equal(sharded["c1_normalised"] > tol, pe[rows]))
 for k in ("rho", "weight_error"):
-    gap = np.max(np.abs(sharded[k] - res[k][rows]) / np.maximum(np.abs(res[k][rows]), 1e-300))
+    ref = getattr(res, k)[rows]
+    gap = np.max(np.abs(sharded[k] - ref) / np.maximum(np.abs(ref), 1e-300))
     print(f"{k}: largest relative difference {gap:.1e}")
-gap = np.max(np.abs(sharded["c1_normalised"] - res["c1_normalised"][rows]))
+gap = np.max(np.abs(sharded["c1_normalised"] - res.c1_normalised[rows]))
 print(f"c1_normalised (scale free): largest difference {gap:.1e}")

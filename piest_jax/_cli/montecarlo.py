@@ -4,7 +4,6 @@ import jax
 
 from .._excitation.families import DEFAULT_FAMILIES, FAMILIES
 from .._excitation.map_figure import pe_map_figure
-from .._excitation.map_report import summarise
 from .._excitation.map_settings import make_settings
 from .._excitation.montecarlo import pe_map
 from . import memory
@@ -117,39 +116,8 @@ def run(args) -> int:
         settle=args.settle,
         quiet=args.quiet,
     )
-    summary = summarise(res, settings)
-    report = {
-        "n_inputs": args.inputs,
-        "seed": args.seed,
-        "seconds": res["seconds"],
-        "devices": [str(d) for d in jax.devices()],
-        "settings": settings._asdict(),
-        "family_names": list(FAMILIES),
-    } | summary
-    report["draws"] = {
-        k: res[k]
-        for k in (
-            "family",
-            "rho",
-            "c1",
-            "c1_normalised",
-            "pe",
-            "min_excited",
-            "redundant",
-            "sharper",
-            "exact",
-            "exact_level",
-            "margin",
-            "samples_to_1pct",
-            "worst_samples_to_1pct",
-            "guaranteed_samples_to_1pct",
-            "worst_error",
-            "guaranteed_error",
-        )
-    } | {"weight_error": res["weight_error"], "thresholds": res["thresholds"]}
-    if args.settle:
-        report["draws"]["settled"] = res["settled"]
-    written = [_io.save_figure(pe_map_figure(res, settings), out / "pe_map.png", dpi=110)]
+    report = {"seed": args.seed} | res.to_json()
+    written = [_io.save_figure(pe_map_figure(res), out / "pe_map.png", dpi=110)]
     written.append(_io.write_json(out / "pe_map.json", report))
     for path in written:
         print(path)

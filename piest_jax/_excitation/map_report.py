@@ -4,7 +4,8 @@ import numpy as np
 
 from .condition import SHARPER_STATEMENT
 from .families import FAMILIES
-from .map_settings import MapSettings, numerical_tolerance
+from .map_result import PEMap
+from .map_settings import numerical_tolerance
 from .settle import settle_band
 
 EXACT_STATEMENT = (
@@ -32,7 +33,7 @@ def _counts(rho, pe, sharper, old) -> dict:
     }
 
 
-def summarise(result: dict, settings: MapSettings) -> dict:
+def summarise(result: PEMap) -> dict:
     """The counts a map is judged by, overall and per family.
 
     A draw is PE when the map says so (`pe`: its normalised level exceeds
@@ -45,33 +46,35 @@ def summarise(result: dict, settings: MapSettings) -> dict:
     settled map decides those exactly. The `old_sharper_*` keys count the earlier sharper
     condition ([`sharper_condition`][], necessary only).
 
-    **Arguments:** `result` from [`pe_map`][]; its `settings`.
+    **Arguments:** `result`, a [`PEMap`][] from [`pe_map`][].
 
     **Returns:** a JSON-ready dict.
     """
+    settings = result.settings
     tol = numerical_tolerance(settings.dtype)
-    rho = np.asarray(result["rho"])
-    pe = np.asarray(result["pe"])
-    sharper = np.asarray(result["exact"])
-    old = np.asarray(result["sharper"])
-    fam = np.asarray(result["family"])
+    rho = np.asarray(result.rho)
+    pe = np.asarray(result.pe)
+    sharper = np.asarray(result.exact)
+    old = np.asarray(result.sharper)
+    fam = np.asarray(result.family)
+    settled = np.zeros_like(pe) if result.settled is None else np.asarray(result.settled)
     total = _counts(rho, pe, sharper, old)
     per_family = {
         FAMILIES[f]: _counts(rho[fam == f], pe[fam == f], sharper[fam == f], old[fam == f]) for f in settings.families
     }
-    c1 = np.asarray(result["c1"])
-    margin = np.asarray(result["margin"])
-    scale = np.asarray(result["gram_scale"])
+    c1 = np.asarray(result.c1)
+    margin = np.asarray(result.margin)
+    scale = np.asarray(result.gram_scale)
     # The bound holds up to the rounding of c1 itself, a few eps times the largest eigenvalue.
     violated = margin > c1 + tol * scale
     ratio = c1[sharper & (margin > 0)] / margin[sharper & (margin > 0)]
-    measured = np.asarray(result["samples_to_1pct"])
-    worst = np.asarray(result["worst_samples_to_1pct"])
-    guaranteed = np.asarray(result["guaranteed_samples_to_1pct"])
+    measured = np.asarray(result.samples_to_1pct)
+    worst = np.asarray(result.worst_samples_to_1pct)
+    guaranteed = np.asarray(result.guaranteed_samples_to_1pct)
     both = (worst > 0) & (guaranteed > 0)
     slack = guaranteed[both] / worst[both]
-    err, worst_err = np.asarray(result["weight_error"]), np.asarray(result["worst_error"])
-    bound = np.asarray(result["guaranteed_error"])
+    err, worst_err = np.asarray(result.weight_error), np.asarray(result.worst_error)
+    bound = np.asarray(result.guaranteed_error)
     # Each inequality up to the rounding of the errors themselves (relative, a few eps).
     eps = 1e3 * np.finfo(np.asarray(bound).dtype).eps
     return {
@@ -83,11 +86,11 @@ def summarise(result: dict, settings: MapSettings) -> dict:
             "statement": "draws whose event level is below band, or whose raw-Gram and exact-"
             "condition verdicts disagree, decided by the play outputs' rank in exact arithmetic "
             "(only when the map was run with settle)",
-            "done": "settled" in result,
+            "done": result.settled is not None,
             "band": settle_band(settings.n_samples, settings.n_plays, settings.dtype),
-            "settled": int(np.sum(result.get("settled", 0))),
-            "settled_pe": int(np.sum(result.get("settled", False) & pe)),
-            "seconds": float(result.get("settle_seconds", 0.0)),
+            "settled": int(np.sum(settled)),
+            "settled_pe": int(np.sum(settled & pe)),
+            "seconds": float(result.settle_seconds),
         },
         "exact_condition": {
             "statement": EXACT_STATEMENT,

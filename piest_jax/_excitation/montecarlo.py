@@ -19,6 +19,7 @@ from .. import _checks
 from .._progress import progress
 from .draw_metrics import draw_statistics
 from .families import draw_case
+from .map_result import PEMap
 from .map_settings import MapSettings, numerical_tolerance
 from .settle import settle_draws
 
@@ -116,7 +117,7 @@ def pe_map(
     devices=None,
     settle: bool = False,
     quiet: bool = False,
-) -> dict:
+) -> PEMap:
     """Run the Monte Carlo map: `n_draws` draws, `chunk` at a time, sharded over `devices`.
 
     **Arguments:**
@@ -140,12 +141,10 @@ def pe_map(
       about 25 ms a draw at T = 2000, and most draws that are not PE need it.
     - `quiet`: no progress bar.
 
-    **Returns:** a dict of NumPy arrays with a leading axis of `n_draws` (see
-    [`draw_statistics`][]) and `pe` (the PE verdict), plus `seconds`, the wall time including
-    compilation and settling. `pe` is the raw Gram level above `numerical_tolerance`, or with
-    `settle` the rank in exact arithmetic where settled; `exact` is then also exact where the
-    event level is below the band; `settled` says which draws were settled and `settle_seconds`
-    how long it took.
+    **Returns:** a [`PEMap`][]: every draw's statistics (see [`draw_statistics`][]), its `pe`
+    verdict (the raw Gram level above `numerical_tolerance`, or with `settle` the rank in exact
+    arithmetic where settled; `exact` is then also exact where the event level is below the
+    band, and `settled` says which draws were settled), and the wall time.
     """
     key = _checks.prng_key(key)
     for name, v in (("n_draws", n_draws), ("chunk", chunk)):
@@ -174,10 +173,15 @@ def pe_map(
             settle_seconds += time.perf_counter() - t0
         parts.append(out)
     result = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    result["family"] = draw_family(start + np.arange(n_draws), settings)
-    if settle:
-        result["settle_seconds"] = settle_seconds
-    else:
+    if not settle:
         result["pe"] = result["c1_normalised"] > numerical_tolerance(settings.dtype)
-    result["seconds"] = time.perf_counter() - start_time
-    return result
+    return PEMap(
+        settings=settings,
+        start=int(start),
+        devices=tuple(str(d) for d in devices),
+        family=draw_family(start + np.arange(n_draws), settings),
+        settled=result.pop("settled", None),
+        **result,
+        seconds=time.perf_counter() - start_time,
+        settle_seconds=settle_seconds,
+    )

@@ -19,6 +19,7 @@ import numpy as np
 from .._operators.play import _bank
 from .exact_arithmetic import exact_draw_pe
 from .exact_condition import _event_level
+from .map_result import PEMap
 from .map_settings import MapSettings, numerical_tolerance
 
 
@@ -41,18 +42,22 @@ def settle_band(n_samples: int, n_plays: int, dtype) -> float:
     return max(2.0 * n_plays * n_samples**2 * eps, numerical_tolerance(dtype))
 
 
-def needs_settling(result: dict, settings: MapSettings) -> np.ndarray:
+def needs_settling(result: PEMap) -> np.ndarray:
     """Which draws of a map float arithmetic cannot decide: event level below the band, or the
     raw Gram and the exact condition disagreeing.
 
-    **Arguments:** `result`, a map's per-draw statistics (from [`pe_map`][]); its `settings`.
+    **Arguments:** `result`, a [`PEMap`][] from [`pe_map`][].
 
     **Returns:** (n_draws,) booleans, True where the draw needs settling.
     """
+    return _undecided(result.c1_normalised, result.exact_level, result.exact, result.settings)
+
+
+def _undecided(c1_normalised, exact_level, exact, settings: MapSettings) -> np.ndarray:
     s = settings
-    raw_pe = np.asarray(result["c1_normalised"]) > numerical_tolerance(s.dtype)
-    low = np.asarray(result["exact_level"]) < settle_band(s.n_samples, s.n_plays, s.dtype)
-    return low | (raw_pe != np.asarray(result["exact"]))
+    raw_pe = np.asarray(c1_normalised) > numerical_tolerance(s.dtype)
+    low = np.asarray(exact_level) < settle_band(s.n_samples, s.n_plays, s.dtype)
+    return low | (raw_pe != np.asarray(exact))
 
 
 @functools.lru_cache(maxsize=8)
@@ -84,7 +89,7 @@ def settle_draws(stats: dict, settings: MapSettings) -> dict:
     u, x0, r = out.pop("u"), out.pop("x0"), stats["thresholds"]
     pe = np.asarray(stats["c1_normalised"]) > numerical_tolerance(s.dtype)
     exact = np.array(stats["exact"], dtype=bool)
-    settled = needs_settling(stats, s)
+    settled = _undecided(stats["c1_normalised"], stats["exact_level"], stats["exact"], s)
     for i in np.flatnonzero(settled):
         # The windows with the lowest float levels first: a deficient draw stops at its first.
         order = np.argsort(np.asarray(_levels(s)(u[i], r[i], x0[i])))
