@@ -53,6 +53,12 @@ def _simd_args(compiler) -> list[str]:
     return _SIMD_FLAGS if ok else []
 
 
+def _jaxlib_version() -> str:
+    from importlib.metadata import version
+
+    return version("jaxlib")
+
+
 def _jax_include() -> str | None:
     try:
         import jax.ffi
@@ -91,6 +97,9 @@ def _extensions() -> list[Extension]:
             "piest_jax._operators.kernel._play_kernel",
             sources=["piest_jax/_operators/kernel/play_kernel.cc"],
             include_dirs=[include],
+            # The binding loads the kernel only under this same jaxlib (pip's isolated build can
+            # compile against a newer jaxlib than the one installed beside the package).
+            define_macros=[("PIEST_JAXLIB_VERSION", f'"{_jaxlib_version()}"')],
             language="c++",
             extra_compile_args=["-O3", "-g0", "-std=c++17", "-fvisibility=hidden", "-w"],
             extra_link_args=["-pthread"],

@@ -483,3 +483,21 @@ def test_a_binary_for_missing_cpu_features_is_refused(monkeypatch):
     assert ext is None
     assert "compiled for avx2, fma, which this CPU lacks" in reason
     assert "PIEST_KERNEL_NATIVE=0" in reason
+
+
+@needs_kernel
+def test_the_kernel_is_built_against_the_installed_jaxlib():
+    from importlib.metadata import version
+
+    assert K._built_with(K._ext) == version("jaxlib")
+
+
+@needs_kernel
+def test_a_binary_for_another_jaxlib_is_refused(monkeypatch):
+    # pip's isolated build can compile against a newer jaxlib than the one installed: such a
+    # kernel must not be registered with this XLA runtime.
+    monkeypatch.setattr(K, "_installed_jaxlib", lambda: "0.0.1")
+    ext, reason = K._load()
+    assert ext is None
+    assert f"compiled against jaxlib {K._built_with(K._ext)}, but jaxlib 0.0.1 is installed" in reason
+    assert "--no-build-isolation" in reason

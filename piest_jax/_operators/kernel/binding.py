@@ -18,7 +18,10 @@ Batching (`jax.vmap`) hands the whole batch to one kernel call (`vmap_method="br
 splits the signals across the CPU cores (`PIEST_KERNEL_THREADS` caps the thread count).
 
 When the extension was not compiled (no C++ compiler at install time, or PIEST_KERNEL_BUILD=0), does
-not load, or was compiled for instructions this CPU lacks, `method="kernel"` and `method="auto"` on
+not load, was compiled against another jaxlib than the one installed (pip builds in an isolated
+environment with the newest jaxlib unless told `--no-build-isolation`; an XLA runtime given handlers
+built for other headers can break the whole CPU backend), or was compiled for instructions this CPU
+lacks, `method="kernel"` and `method="auto"` on
 a CPU backend fall back to the scan and warn once per process.
 """
 
@@ -46,6 +49,17 @@ def _missing_isa(required) -> list[str]:
     return [] if flags is None else [name for name in required if name not in flags]
 
 
+def _installed_jaxlib() -> str:
+    from importlib.metadata import version
+
+    return version("jaxlib")
+
+
+def _built_with(ext) -> str:
+    """The jaxlib version `ext` was compiled against ("unknown" for a build that does not say)."""
+    return ext.built_with() if hasattr(ext, "built_with") else "unknown"
+
+
 def _load():
     name = __package__ + "._play_kernel"
     if importlib.util.find_spec(name) is None:
@@ -54,6 +68,12 @@ def _load():
         ext = importlib.import_module(name)
     except ImportError as err:  # built, but unloadable here (another Python or jaxlib, say)
         return None, f"it does not load: {err}"
+    built, installed = _built_with(ext), _installed_jaxlib()
+    if built != installed:
+        return None, (
+            f"it was compiled against jaxlib {built}, but jaxlib {installed} is installed; "
+            "reinstall piest_jax against the installed jaxlib (pip install --no-build-isolation ...)"
+        )
     missing = _missing_isa(ext.isa())
     if missing:  # a binary built on another machine: running it would crash the process
         return None, (

@@ -761,10 +761,18 @@ PyObject* Isa(PyObject*, PyObject*) {
 #endif
 }
 
+// The jaxlib whose FFI headers the kernels were compiled against (setup.py defines it): the
+// binding refuses the kernels under another jaxlib, whose runtime may not match those headers.
+#ifndef PIEST_JAXLIB_VERSION
+#define PIEST_JAXLIB_VERSION "unknown"
+#endif
+PyObject* BuiltWith(PyObject*, PyObject*) { return PyUnicode_FromString(PIEST_JAXLIB_VERSION); }
+
 PyMethodDef kMethods[] = {
     {"registrations", Registrations, METH_NOARGS, "FFI handler capsules by target name."},
     {"code_bytes", CodeBytes_, METH_VARARGS, "Bytes of branch codes per step: (n, itemsize)."},
     {"isa", Isa, METH_NOARGS, "The instruction-set extensions the kernels need."},
+    {"built_with", BuiltWith, METH_NOARGS, "The jaxlib version the kernels were compiled against."},
     {nullptr, nullptr, 0, nullptr},
 };
 
