@@ -91,6 +91,8 @@ _EXPORTS = {
     # identification
     "PIFit": ("._identification.fit", "PIFit"),
     "fit_pi": ("._identification.fit", "fit_pi"),
+    "PICoreFit": ("._identification.fit", "PICoreFit"),
+    "fit_pi_core": ("._identification.fit", "fit_pi_core"),
     "unexcited": ("._identification.fit", "unexcited"),
     "uniform_pi": ("._identification.fit", "uniform_pi"),
     "ModelSize": ("._identification.model_size", "ModelSize"),
@@ -256,8 +258,10 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.compensate import linear_feedforward as linear_feedforward
     from ._identification.figures import compensation_figure as compensation_figure
     from ._identification.figures import fit_figure as fit_figure
+    from ._identification.fit import PICoreFit as PICoreFit
     from ._identification.fit import PIFit as PIFit
     from ._identification.fit import fit_pi as fit_pi
+    from ._identification.fit import fit_pi_core as fit_pi_core
     from ._identification.fit import unexcited as unexcited
     from ._identification.fit import uniform_pi as uniform_pi
     from ._identification.fit_gpi import GPIFit as GPIFit

@@ -20,7 +20,9 @@ several grids are solved at once by `vmap` (in batches on long records, to bound
 best final fit is kept. Levenberg-Marquardt fits of records longer than `LONG_RECORD` samples
 never form the Jacobian: `normal_equations.py` accumulates JᵀJ and Jᵀr chunk by chunk.
 `fit_pi` itself runs on the host: it validates the data and picks the best start in Python, around
-one compiled solve.
+one compiled solve. `fit_pi_core` is that solve with its normalisation and choice of start in JAX:
+it runs under `jit` and `vmap`, and `grad` reaches the data through optimistix's implicit
+derivative at the optimum.
 
 Identifiability (paper Assumption 1): a play whose threshold is at or above half the input's
 peak-to-peak range never traverses its loop, so its threshold is not determined by the data. Such
@@ -49,6 +51,7 @@ from .._operators.play import play_step
 from . import covariance as _cov
 from . import time_constants
 from .batches import map_in_batches
+from .fit_data import Scales
 from .fit_data import prepare as _prepare
 from .solvers import SOLVERS as SOLVERS
 from .solvers import check_solver, least_squares_solver, result_name
@@ -185,6 +188,22 @@ def _constrained(params, positive_weights, r_bound=None, active=None):
     if active is not None:
         w = w * active
     return r, w
+
+
+def _user_units(p, r, w, x0, s, n):
+    """The first `n` plays' thresholds, weights, output offset and initial states in the data's
+    units, from the normalised parameters `p`, their thresholds `r` and weights `w`
+    (`_constrained`), the fixed states `x0` and the `Scales` `s`. `fit_pi` and `fit_pi_core` both
+    map their fits back here, so the two report a solution the same way."""
+    xn = p.get("initial_states", x0)
+    r, w, xn = r[:n], w[:n], xn[:n]
+    thresholds = r * s.u_half
+    weights = w * s.y_half / s.u_half
+    states = s.u_mid + s.u_half * xn
+    # y = y_mid + y_half (Σ w' x' + Σ c' z' + c'), x' = (x - u_mid)/u_half, z' likewise: the plays'
+    # share of u_mid moves to the offset here, a creep's is the caller's.
+    offset = s.y_mid + s.y_half * p["offset"] - s.u_mid * jnp.sum(weights)
+    return thresholds, weights, offset, states
 
 
 def _lag_weights(params, lag_active=None):
@@ -374,7 +393,7 @@ def _solve_starts(
             lag_active,
             lag_base,
         )
-        sol = optx.least_squares(
+        sol: optx.Solution = optx.least_squares(
             _residuals, least_squares_solver(solver, rtol, atol), p0, args=args, max_steps=max_steps, throw=False
         )
         res = _residuals(sol.value, args)
@@ -397,7 +416,8 @@ def _solve_starts(
 # 1 kB per sample and start (256 MB for four starts at 2^16), and it runs 2-4x faster (measured
 # from 2*10^3 to 10^5 samples, experiments/README.md). Below it the in-memory optimistix solve is
 # kept: its memory is modest there, `_solve_starts` is differentiable in reverse mode (implicit
-# differentiation at the optimum), and short-record fits stay exactly as they were.
+# differentiation at the optimum; `fit_pi_core` relies on it), and short-record fits stay exactly
+# as they were.
 LONG_RECORD = 2**16
 
 
@@ -467,7 +487,7 @@ def fit_pi(
       default keeps `starts_at_once` x T near 2^20 samples. Levenberg-Marquardt fits of records
       longer than `LONG_RECORD` (2^16) samples do not hold the Jacobian at all: they accumulate
       the normal equations chunk by chunk, all starts at once, in memory that does not grow
-      with T, and ignore this setting (such a fit is not differentiable in reverse mode).
+      with T, and ignore this setting.
     - `pad_plays`: solve with arrays for this many plays (at least `n_plays`), the extra ones
       inactive, so that fits with different `n_plays` share one compilation (as
       [`select_plays`][] does on short records); the result is the same fit up to rounding (a
@@ -499,6 +519,10 @@ def fit_pi(
 
     **Returns:** a [`PIFit`][] in the data's units. Raises `ValueError` for mismatched or
     non-finite data, an input with zero range, or more parameters than fitted samples.
+
+    `fit_pi` runs on the host: it cannot be traced by `jax.jit` or `jax.vmap`, and `jax.grad`
+    does not pass through it. [`fit_pi_core`][] is its fit (without creep or covariance) as a
+    pure JAX function that can.
     """
     check_solver(solver)
     if covariance is not None and covariance not in _cov.METHODS:
@@ -617,15 +641,10 @@ def fit_pi(
         raise ValueError("every start of the fit produced non-finite residuals")
     p = jax.tree.map(lambda a: a[best], params)
     r_all, w_all = _constrained(p, positive_weights, r_bound, active)
-    xn = p.get("initial_states", x0)
-    r, w, xn = r_all[:n_plays], w_all[:n_plays], xn[:n_plays]
-    thresholds = r * s.u_half
-    weights = w * s.y_half / s.u_half
-    states = s.u_mid + s.u_half * xn
-    # y = y_mid + y_half (Σ w' x' + Σ c' z' + c'), x' = (x - u_mid)/u_half, z' likewise
-    offset = s.y_mid + s.y_half * p["offset"] - s.u_mid * jnp.sum(weights)
+    thresholds, weights, offset, states = _user_units(p, r_all, w_all, x0, s, n_plays)
     creep = None
     if n_lags > 0:
+        # The lags' share of u_mid moves to the offset as the plays' does (`_user_units`).
         cw = _lag_weights(p)[:n_lags] * s.y_half / s.u_half
         offset = offset - s.u_mid * jnp.sum(cw)
         tau = jnp.exp(lag_log_tau(p["lag_theta"], lag_base)[:n_lags]) * dt
@@ -703,8 +722,240 @@ def uniform_pi(u: SignalLike, y: SignalLike, n_plays: int, *, initial_states=Non
         offset=s.y_mid + s.y_half * p["offset"] - s.u_mid * jnp.sum(weights),
         initial_states=s.u_mid + s.u_half * x0,
         rmse=jnp.sqrt(loss) * s.y_half,
-        result=optx.RESULTS.successful,
+        # An equinox Enumeration's members are declared as strings and become items at run time.
+        result=optx.RESULTS.successful,  # type: ignore[arg-type]
         flagged=jnp.zeros(n_plays, bool),
         n_steps=jnp.asarray(0),
         start_rmse=jnp.sqrt(loss)[None] * s.y_half,
+    )
+
+
+class PICoreFit(eqx.Module):
+    """A PI model y = Σ_j w_j H_{r_j}[u] + offset fitted by [`fit_pi_core`][], in the data's units.
+
+    Every field is an array (under `jax.vmap` over records, each gains a leading record axis).
+
+    **Fields:**
+
+    - `thresholds` (n,): 0 = r_1 < r_2 < ... < r_n.
+    - `weights` (n,), `offset` (scalar), `initial_states` (n,): the plays' states before sample 0
+      (the given ones, or the fitted ones with `fit_initial_states`).
+    - `rmse`: root-mean-square residual on the fitted samples (weighted by `mask`).
+    - `result`: the optimistix result code of the chosen start (`optx.RESULTS`).
+    - `n_steps`: solver steps of the chosen start.
+    - `start_rmse` (starts,): every start's final RMSE, inf for a start whose residuals were not
+      finite.
+    - `unexcited` (n,) bool: plays whose threshold is at or above half the input's peak-to-peak
+      range, which the input never drives around their loop (their thresholds are where the
+      solver left them; see [`unexcited`][piest_jax.unexcited]).
+    """
+
+    thresholds: Thresholds
+    weights: Weights
+    offset: Scalar
+    initial_states: States
+    rmse: Scalar
+    result: optx.RESULTS
+    n_steps: Array
+    start_rmse: Float[Array, " starts"]
+    unexcited: Bool[Array, " plays"]
+
+    def operator(self) -> PIOperator:
+        """The fitted PI operator without the offset, as a [`PIOperator`][] (of one record's fit)."""
+        return PIOperator(self.thresholds, self.weights, self.initial_states)
+
+    def __call__(self, u: SignalLike, initial_states=None) -> Signal:
+        """The model output operator(u) + offset for an input `u` (T,), the plays starting from
+        `initial_states` (scalar or (n,); by default the fitted ones)."""
+        x0 = self.initial_states if initial_states is None else initial_states
+        return PIOperator(self.thresholds, self.weights, x0)(u) + self.offset
+
+
+def _refuse(x, checks):
+    """`x`, after refusing it when any of `checks`, (bad, message) pairs, holds: a `ValueError`
+    with the first one's message now when they are concrete (an eager call), else one
+    `eqx.error_if` check, naming the first that holds, that every later value depends on (under
+    `jit`, `vmap`, `grad`). One check, not one per problem, so that a traced call reports the same
+    problem an eager one does, whatever order the compiled program runs in."""
+    bad = jnp.stack([jnp.asarray(b) for b, _ in checks])
+    messages = [m for _, m in checks]
+    if _checks.is_concrete(bad):
+        hits = np.flatnonzero(np.asarray(bad))
+        if hits.size:
+            raise ValueError(messages[hits[0]])
+        return x
+    return eqx.branched_error_if(x, jnp.any(bad), jnp.argmax(bad), messages)
+
+
+def fit_pi_core(
+    u: SignalLike,
+    y: SignalLike,
+    n_plays: int,
+    *,
+    positive_weights: bool = True,
+    fit_initial_states: bool = False,
+    initial_states=None,
+    mask=None,
+    solver: Solver = "lm",
+    n_starts: int = 4,
+    key=None,
+    max_steps: int = 100,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+) -> PICoreFit:
+    """[`fit_pi`][]'s fit of thresholds, weights and an output offset as a pure JAX function: it
+    runs under `jax.jit`, under `jax.vmap` over records of one length, and `jax.grad` (or
+    `jax.jacfwd`) of anything computed from its result reaches the data `y` and `u`.
+
+    The fit is `fit_pi`'s, without a creep and without a covariance: the same normalisation of
+    the data by their ranges, the same starting threshold grids and the same compiled multi-start
+    solve, the best start picked by `jnp.argmin` and mapped back to the data's units the same way.
+    The derivatives with respect to the data are those of the solver's optimum, by implicit
+    differentiation (the implicit function theorem on the optimality condition), not through its
+    iterations. They exist where the optimum is a regular minimum and a small change of the data
+    keeps the input's extremes, the sample that tops each reversal and the best start where they
+    are (the fit is piecewise smooth in `u`). The solver's tolerances bound their accuracy as they
+    bound the fit's.
+
+    How it relates to `fit_pi`: `fit_pi` runs on the host (NumPy checks, the best start picked
+    in Python, the covariance), so it can be neither traced nor differentiated. With the options
+    both take, on records of up to `LONG_RECORD` (2^16) samples, its solve is this one, except
+    that `fit_pi` appends masked samples repeating the last input so that nearby record lengths
+    share a compilation. Those samples move no play and add no residual, so both minimise the same
+    function of the parameters from the same starts and their fits agree to rounding; should
+    rounding make a converged fit stop a step sooner or later, or pick another of several starts
+    that reached the same optimum, they agree to the solver's tolerance. Longer
+    Levenberg-Marquardt fits in `fit_pi` accumulate the normal equations in bounded memory
+    instead; this function keeps the residuals' Jacobian in memory at any length (about 1 kB per
+    sample and start in float64).
+
+    **Arguments:**
+
+    - `u`, `y`: the measured input and output, (T,) each.
+    - `n_plays`: the number of plays n (static).
+    - `positive_weights`: keep every weight positive (static; the fitted operator is then
+      invertible).
+    - `fit_initial_states`: also fit the plays' states before the first sample (static).
+    - `initial_states`: fixed states (scalar or (n,)) when they are not fitted, or where the fitted
+      ones start; default u[0].
+    - `mask`: (T,) weights on the samples' residuals, 0 to hold a sample out (it still drives the
+      plays' states); default all ones.
+    - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`, or an optimistix
+      least-squares solver or minimiser object (static).
+    - `n_starts`: starting threshold grids, solved together under `vmap` (static); the best final
+      fit is kept.
+    - `key`: a PRNG key; when given, starts after the first use random threshold spacings.
+    - `max_steps`, `rtol`, `atol`: the solver's budget and tolerances in normalised units
+      (static).
+
+    **Returns:** a [`PICoreFit`][] in the data's units. Raises `ValueError` for a static problem
+    (a count below 1, mismatched shapes, more parameters than samples) when it is called or
+    traced. A problem in the values (NaN or inf in the data, an input with zero range, fewer
+    fitted samples than parameters under `mask`, no start with finite residuals) raises
+    `ValueError` in an eager call and, under a transformation, stops the computation through
+    `eqx.error_if` instead of returning NaN: an `EquinoxRuntimeError` naming the problem under
+    `eqx.filter_jit`, a runtime error whose text names it under `jax.jit`.
+
+    ```python
+    fit = jax.jit(lambda u, y: pj.fit_pi_core(u, y, 3))(u, y)
+    fits = jax.vmap(lambda u, y: pj.fit_pi_core(u, y, 3))(us, ys)  # records (B, T)
+    g = jax.grad(lambda y: pj.fit_pi_core(u, y, 3).thresholds[-1])(y)  # d r_n / d y
+    ```
+    """
+    check_solver(solver)
+    for name, count in (("n_plays", n_plays), ("n_starts", n_starts), ("max_steps", max_steps)):
+        if not _checks.is_whole(count) or count < 1:
+            raise ValueError(f"`{name}` must be a positive whole number, got {count!r}")
+    for name, tol in (("rtol", rtol), ("atol", atol)):
+        if not (isinstance(tol, int | float | np.integer | np.floating) and np.isfinite(tol) and tol >= 0):
+            raise ValueError(f"`{name}` must be a non-negative finite number, got {tol!r}")
+    for name, flag in (("positive_weights", positive_weights), ("fit_initial_states", fit_initial_states)):
+        if not isinstance(flag, bool | np.bool_):
+            raise ValueError(f"`{name}` must be True or False (it is static), got {flag!r}")
+    n_plays, n_starts = int(n_plays), int(n_starts)
+    u = _checks.signal(u, "u")
+    y = _checks.signal(y, "y")
+    if u.shape != y.shape:
+        raise ValueError(f"`u` has {u.shape[0]} samples but `y` has {y.shape[0]}")
+    dtype = jnp.result_type(u, y)
+    u, y = u.astype(dtype), y.astype(dtype)
+    T = u.shape[0]
+    n_params = (3 if fit_initial_states else 2) * n_plays + 1
+    if n_params > T:
+        raise ValueError(
+            f"{n_plays} plays need {n_params} parameters but the record has only {T} samples; "
+            "use fewer plays or a longer record"
+        )
+    if mask is None:
+        mask = jnp.ones_like(u)
+    else:
+        mask = jnp.asarray(mask, dtype)
+        if mask.shape != u.shape:
+            raise ValueError(f"`mask` has shape {mask.shape}, expected {u.shape}")
+    if initial_states is None:
+        x0 = jnp.broadcast_to(u[0], (n_plays,))
+    else:
+        x0 = jnp.broadcast_to(_checks.per_play(initial_states, n_plays, "initial_states").astype(dtype), (n_plays,))
+    key = None if key is None else _checks.prng_key(key)
+
+    n_fit = jnp.sum(mask > 0)
+    u_lo, u_hi = jnp.min(u), jnp.max(u)
+    # As in `fit_pi`: residuals in the data's units are squared and summed for the RMSE.
+    limit = jnp.sqrt(jnp.finfo(dtype).max / jnp.maximum(n_fit, 1).astype(dtype))
+    name = jnp.dtype(dtype).name
+    u, y, mask, x0 = _refuse(
+        (u, y, mask, x0),
+        [
+            (~jnp.all(jnp.isfinite(u)), "`u` contains NaN or inf"),
+            (~jnp.all(jnp.isfinite(y)), "`y` contains NaN or inf"),
+            (~jnp.all(jnp.isfinite(mask)), "`mask` contains NaN or inf"),
+            (~jnp.all(jnp.isfinite(x0)), "`initial_states` contains NaN or inf"),
+            (~jnp.isfinite(u_hi - u_lo), f"the input's range overflows {name}; rescale `u`"),
+            (~(u_hi > u_lo), "the input has zero range (a constant): it excites no play"),
+            (
+                jnp.max(jnp.abs(y)) >= limit,
+                f"`y` has values out of the range the fit can square and sum in {name}; rescale it",
+            ),
+            (n_fit < n_params, f"{n_plays} plays need {n_params} parameters but fewer samples are fitted (`mask`)"),
+        ],
+    )
+    y_lo, y_hi = jnp.min(y), jnp.max(y)
+    s = Scales(
+        u_mid=0.5 * (u_lo + u_hi),
+        u_half=0.5 * (u_hi - u_lo),
+        y_mid=0.5 * (y_lo + y_hi),
+        y_half=jnp.where(y_hi > y_lo, 0.5 * (y_hi - y_lo), jnp.ones((), dtype)),
+    )
+    un, yn, x0 = (u - s.u_mid) / s.u_half, (y - s.y_mid) / s.y_half, (x0 - s.u_mid) / s.u_half
+
+    params, loss, results, steps = _solve_starts(
+        _grid(n_plays, n_starts, dtype, key),
+        un,
+        yn,
+        x0,
+        mask,
+        None,
+        solver=solver,
+        positive_weights=positive_weights,
+        fit_initial_states=fit_initial_states,
+        max_steps=int(max_steps),
+        rtol=rtol,
+        atol=atol,
+        batch=min(default_starts_at_once(T), n_starts),
+    )
+    best = jnp.argmin(loss)
+    p = jax.tree.map(lambda a: a[best], params)
+    p, loss = _refuse((p, loss), [(~jnp.isfinite(loss[best]), "every start of the fit produced non-finite residuals")])
+    r, w = _constrained(p, positive_weights)
+    thresholds, weights, offset, states = _user_units(p, r, w, x0, s, n_plays)
+    return PICoreFit(
+        thresholds=thresholds,
+        weights=weights,
+        offset=offset,
+        initial_states=states,
+        rmse=jnp.sqrt(loss[best]) * s.y_half,
+        result=jax.tree.map(lambda a: a[best], results),
+        n_steps=steps[best],
+        start_rmse=jnp.sqrt(loss) * s.y_half,
+        unexcited=thresholds >= s.u_half,
     )
