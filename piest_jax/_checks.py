@@ -31,7 +31,8 @@ def prng_key(key, name: str = "key"):
         return key
     arr = np.asarray(key) if is_concrete(key) else key
     if getattr(arr, "dtype", None) == np.uint32 and getattr(arr, "shape", None) == (2,):
-        return jax.random.wrap_key_data(arr)
+        # Any uint32 array-like is wrapped (NumPy's too); the annotation names jax.Array only.
+        return jax.random.wrap_key_data(arr)  # type: ignore[arg-type]
     raise ValueError(
         f"`{name}` must be a PRNG key such as jax.random.key(0) or jax.random.PRNGKey(0), got "
         f"{type(key).__name__} {getattr(key, 'dtype', '')}{list(getattr(key, 'shape', ()))}"

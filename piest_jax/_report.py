@@ -69,7 +69,7 @@ def json_text(obj, *, name: str = "the report", allowed=None) -> str:
     **Returns:** the text, ending in a newline. Non-finite numbers become `null` and are listed
     under the top-level `"non_finite"` key; outside `allowed` they raise [`NonFiniteError`][].
     """
-    bad = []
+    bad: list[tuple[tuple, float]] = []
     data = _jsonable(obj, (), bad)
     check_finite(name, bad, allowed)
     if bad:

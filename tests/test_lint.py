@@ -1,5 +1,7 @@
-"""The code is lint-clean and formatted (ruff, with the rules in pyproject.toml), so a review reads logic, not style."""
+"""The code is lint-clean, formatted (ruff, with the rules in pyproject.toml) and type-checks (mypy), so a review
+reads logic, not style."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -27,5 +29,18 @@ def test_ruff_format_changes_nothing():
         capture_output=True,
         text=True,
         timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-2000:]
+
+
+def test_mypy_finds_nothing():
+    # The package type-checks with the settings in pyproject.toml ([tool.mypy]); a fresh cache
+    # each run, so a stale one cannot hide an error.
+    proc = subprocess.run(
+        [sys.executable, "-m", "mypy", "--no-incremental", "--cache-dir", os.devnull],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-2000:]

@@ -91,6 +91,9 @@ def test_settled_start():
     assert 100 + 150 - 15 < k < 100 + 150
     assert settled_start(np.linspace(0, 1, 50)) == 0  # one sweep of the whole record: no skip
     assert settled_start(np.ones(10)) == 0
+    for bad in (np.inf, np.nan):
+        with pytest.raises(ValueError, match="`u` must be finite to find where the plays settle"):
+            settled_start(np.array([0.0, 1.0, bad, 0.5]))
 
 
 @pytest.mark.parametrize(

@@ -147,7 +147,7 @@ def read_record(path, args, *, validation: bool = False):
     if args.segment is not None and not validation:
         rec = rec.select_segment(args.segment)
     elif rec.n_segments > 1:
-        labels = ", ".join(f"{s.segment[0]:g}" for s in rec.segments())
+        labels = ", ".join(f"{s.segment[0]:g}" for s in rec.segments() if s.segment is not None)
         choose = "give a record of one segment to --validate" if validation else "choose one with --segment LABEL"
         raise CLIError(
             f"{path} holds {rec.n_segments} segments (labels {labels}): their boundaries are not "

@@ -177,6 +177,7 @@ def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     rec = _Record(args)
     r, x0 = _thresholds(args, rec)
+    est: pj.AbstractEstimator
     if args.estimator == "rls":
         est = pj.ContinuousRLS(args.P0, rec.dt, normalisation=args.normalisation)
         settings = dict(P0=args.P0, dt=rec.dt, normalisation=args.normalisation)

@@ -8,7 +8,7 @@ import numpy as np
 from .._identification.band import prediction_band
 from .._identification.covariance import table as parameter_table
 from .._identification.figures import fit_figure
-from .._identification.fit import LONG_RECORD, SOLVERS
+from .._identification.fit import LONG_RECORD, SOLVERS, PIFit
 from .._identification.identify import MODELS, SATURATING, check_options, fit_mask, identify, plan
 from .._identification.model_size import CRITERIA
 from . import fit_saturating, memory
@@ -299,6 +299,7 @@ def run(args) -> int:
         quiet=args.quiet,
     )
     f = result.fit
+    assert isinstance(f, PIFit)  # the models that saturate are fitted by fit_saturating.run
     table = parameter_table(f)
     written = [
         _io.write_json(out / "fit.json", {**result.to_json(), **record_fields(rec, args)}),

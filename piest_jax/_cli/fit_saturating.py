@@ -12,6 +12,8 @@ import numpy as np
 from .._identification import identify_saturating
 from .._identification.band import prediction_band
 from .._identification.covariance import table as parameter_table
+from .._identification.fit_gpi import GPIFit
+from .._identification.fit_preisach import PreisachFit
 from .._identification.identify import identify
 from . import memory
 from . import output as _io
@@ -81,6 +83,7 @@ def run(args, rec, val, out, options: dict) -> int:
         result = identify(rec, val, **options, fit_from=args.fit_from, key=jax.random.key(args.seed))
     except ValueError as e:
         raise CLIError(f"{args.data}: {' '.join(str(e).split())}") from None
+    assert isinstance(result.fit, GPIFit | PreisachFit)  # options["model"] is one that saturates
     report = {**result.to_json(), **record_fields(rec, args)}
     table = "" if result.fit.std_errors is None else parameter_table(result.fit)
     written = [

@@ -29,8 +29,8 @@ import threading
 from . import output as _io
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-_WORDS = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
-_GUARDING = []  # non-empty while a guard is installed
+_WORDS: dict[int, str] = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+_GUARDING: list[str] = []  # non-empty while a guard is installed
 
 
 def guarding() -> bool:

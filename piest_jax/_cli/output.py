@@ -148,7 +148,7 @@ def _signals_deferred():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    pending = []
+    pending: list[int] = []
     previous = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
         previous[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
@@ -157,8 +157,8 @@ def _signals_deferred():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
-        for sig in dict.fromkeys(pending):
-            signal.raise_signal(sig)
+        for signum in dict.fromkeys(pending):
+            signal.raise_signal(signum)
 
 
 def _unlink(path) -> None:

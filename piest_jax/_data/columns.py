@@ -69,4 +69,6 @@ def column_names(columns, source: str) -> tuple[str | None, str, str] | None:
             f"(e.g. time_s,voltage_V,displacement_um), or two for data without time (e.g. H,B); "
             f"got {list(columns)!r}"
         )
-    return names if len(names) == 3 else (None, *names)
+    if len(names) == 3:
+        return names[0], names[1], names[2]
+    return None, names[0], names[1]

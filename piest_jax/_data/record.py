@@ -3,6 +3,7 @@
 import dataclasses
 from importlib import resources
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -219,7 +220,7 @@ def _segment_bounds(segment, source, rows=None):
     """(start, stop) of each run of equal labels; a label that comes back later is refused."""
     starts = np.flatnonzero(np.r_[True, segment[1:] != segment[:-1]])
     bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(segment)]))
-    seen = {}
+    seen: dict[object, int] = {}
     for a, _ in bounds:
         label = segment[a]
         if label in seen:
@@ -246,7 +247,7 @@ def _labels(segment):
     return ", ".join(_label(v) for v in labels)
 
 
-def _fail(source, msg, row=None):
+def _fail(source, msg, row=None) -> NoReturn:
     where = f"{source}, row {row}" if row is not None else str(source)
     raise DataError(f"{where}: {msg}")
 

@@ -125,6 +125,8 @@ def open_record_stream(path, *, columns=None, dt_tolerance: float = 1e-3) -> Rec
     # passes too; anything else it decides itself.
     if n < MIN_SAMPLES or hi_step > lo_step * (1 + dt_tolerance):
         return None
+    # At least one chunk was read, so the first and last samples are set.
+    assert t0 is not None and t_prev is not None and u_first is not None
     # Without a time column the rows were numbered while reading: t0 = 0, dt = 1.
     return dataclasses.replace(
         probe,

@@ -57,7 +57,10 @@ def _fit_many(p, cfg, effect, values):
     """Each grid value of `effect` added to `cfg`: (held-out MSE, value) of the best one."""
     e = EFFECT[effect]
     H = None if e.play_side else _model.play_columns(p, cfg)
-    Hs = e.batch_play_columns(p, *_model.play_inputs(p, cfg), values) if e.play_side else None
+    Hs = None
+    if e.play_side:
+        g, r = _model.play_inputs(p, cfg)
+        Hs = e.batch_play_columns(p, g, r, values)
 
     def sse(q, i):
         c = {**cfg, effect: q}
@@ -241,7 +244,9 @@ def search(
     p = prepared(rec, sc, step=step, folds=True)
     floor = noise_std(rec.y) / sc.y_half
     step_noise = max(1, min(half_cycle(p.u) // SMOOTHER, len(p.y) // (8 * SMOOTHER)))
-    cfg, named, rounds = {}, [], []
+    cfg: dict[str, object] = {}
+    named: list[str] = []
+    rounds: list[dict[str, object]] = []
     first, restarted = {}, False
     base_mse = cur = _cv(p, cfg)
     while len(named) < max_effects:
@@ -410,7 +415,9 @@ def _transients(model, p):
 
 def _states(transients, coef):
     """The estimated states of each effect with transients, `<effect>_states` (empty when absent)."""
-    out = {f"{e.name}_states": [] for e in EFFECT.values() if type(e).transients is not AbstractEffect.transients}
+    out: dict[str, list[float]] = {
+        f"{e.name}_states": [] for e in EFFECT.values() if type(e).transients is not AbstractEffect.transients
+    }
     k = 0
     for name, cols in transients.items():
         out[f"{name}_states"] = [float(c) for c in coef[k : k + cols.shape[1]]]

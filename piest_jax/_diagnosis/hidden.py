@@ -77,7 +77,7 @@ def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0
     w = rng.uniform(0.2, 1.0, n_true) * np.exp(-rng.uniform(0, 2) * np.arange(n_true) / n_true)
     w[0] += rng.uniform(0.3, 1.0)
     w *= rng.uniform(0.5, 5.0) / w.sum()
-    truth = {"effects": list(effects), "forms": {}}
+    truth: dict[str, object] = {"effects": list(effects), "forms": {}}
     # What the effects' forms may read: the record's time axis, input and plain PI operator.
     ctx = types.SimpleNamespace(t=t, u=u, dt=dt, f0=f0, amp=amp, r=r, span0=np.ptp(_pi(u, r, w, np.zeros(n_true))))
     effect_seed = int(rng.integers(2**31))

@@ -137,7 +137,7 @@ def _residuals(theta, args):
 @eqx.filter_jit
 def _solve(theta0, st, data, y, mask, *, solver, max_steps, rtol, atol):
     args = (st, data, y, mask)
-    sol = optx.least_squares(
+    sol: optx.Solution = optx.least_squares(
         _residuals, least_squares_solver(solver, rtol, atol), theta0, args=args, max_steps=max_steps, throw=False
     )
     loss0 = jnp.sum(_residuals(theta0, args) ** 2)

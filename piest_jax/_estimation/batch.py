@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from .. import _checks
 from .._operators.play import play
@@ -95,8 +95,8 @@ def _per_member(x, B: int, name: str, dtype) -> Array:
 
 
 def run_batch(
-    inputs: Float[Array, "batch time"],
-    true_weights: Float[Array, "batch n"] | Float[Array, "batch time n"],
+    inputs: Float[ArrayLike, "batch time"],
+    true_weights: Float[ArrayLike, "batch n"] | Float[ArrayLike, "batch time n"],
     thresholds,
     *,
     key: PRNGKeyArray,
@@ -286,8 +286,10 @@ def _estimator_modules(estimator, B: int, n: int):
             )
         if not isinstance(e, AbstractEstimator):
             raise ValueError(f"`estimator` mixes estimator objects with {e!r}: give names or objects")
-    if items[0].n_plays is not None and items[0].n_plays != n:
-        raise ValueError(f"the estimator is set up for {items[0].n_plays} plays but there are {n} thresholds")
+    first = items[0]
+    assert isinstance(first, AbstractEstimator)  # the loop refused anything else
+    if first.n_plays is not None and first.n_plays != n:
+        raise ValueError(f"the estimator is set up for {first.n_plays} plays but there are {n} thresholds")
     if len(items) == 1:
         return items[0], False
     if len(items) != B:

@@ -99,6 +99,7 @@ def _run_chunk_long(estimator: AbstractEstimator, state, Hn, yn, valid, boundary
     after = ~before & valid
     grams = [(Hn * m[:, None]).T @ Hn for m in (before, after)]
     if cert:
+        assert isinstance(estimator, ContinuousRLS)  # the information is the continuous RLS's
         c = jax.vmap(lambda h: sample_weight(h, estimator.dt, estimator.normalisation))(Hn)
         infos = [(Hn * (c * m)[:, None]).T @ Hn for m in (before, after)]
     else:
@@ -116,6 +117,7 @@ def _run_chunk(estimator: AbstractEstimator, state, Hn, yn, info, valid, window:
         eig = jnp.linalg.eigvalsh(gram)
         return state, w, e, eig[:, 0], eig[:, -1], info, jnp.zeros(n_win, Hn.dtype)
     # The information A = Σ c_i h_i h_iᵀ of the closed form, at the end of every window.
+    assert isinstance(estimator, ContinuousRLS)  # cert: the continuous RLS only
     c = jax.vmap(lambda h: sample_weight(h, estimator.dt, estimator.normalisation))(Hn) * valid
     cw = c[: n_win * window].reshape(n_win, window)
     per_window = jnp.einsum("wt,wti,wtj->wij", cw, Hw, Hw)
@@ -140,7 +142,8 @@ class _Arrays:
             yield self.u[k : k + size], self.y[k : k + size]
 
 
-def _as_record(u, y, dt):
+def _as_record(u, y, dt) -> RecordStream | _Arrays:
+    src: RecordStream | _Arrays
     if isinstance(u, RecordStream):
         if y is not None:
             raise ValueError("give `y` as None with a RecordStream: the stream holds both")
@@ -224,10 +227,10 @@ def estimate_record(
     if not 0 <= int(start) <= T_all - 2:
         raise ValueError(f"`start` must leave at least 2 samples of the record's {T_all}, got {start}")
     start = int(start)
-    r = _checks.thresholds(thresholds, "thresholds")
-    if r.ndim != 1 or r.shape[0] < 1:
-        raise ValueError(f"`thresholds` must be a vector of at least one threshold, got shape {r.shape}")
-    r = np.asarray(r, float)
+    checked = _checks.thresholds(thresholds, "thresholds")
+    if checked.ndim != 1 or checked.shape[0] < 1:
+        raise ValueError(f"`thresholds` must be a vector of at least one threshold, got shape {checked.shape}")
+    r = np.asarray(checked, float)
     n = r.shape[0]
     x0 = np.full(n, src.u_first) if initial_states is None else np.asarray(initial_states, float)
     if x0.shape != (n,) or not np.all(np.isfinite(x0)):
@@ -319,6 +322,7 @@ def estimate_record(
     lo, hi = np.concatenate(lam_min), np.concatenate(lam_max)
     exciting = lo > numerical_tolerance(dtype) * np.maximum(hi, 1e-300)
     if cert:
+        assert isinstance(estimator, ContinuousRLS)
         P0 = np.asarray(estimator.P0, float)
         r0 = np.linalg.eigvalsh(np.linalg.inv(P0 if P0.ndim == 2 else P0 * np.eye(m)))
         bound = r0[-1] / (r0[0] + np.maximum(np.concatenate(infos), 0.0))
@@ -379,12 +383,15 @@ def settled_start(u, *, tolerance: float = 0.02) -> int:
 
     **Returns:** a sample index.
     """
+    src: RecordStream | _Arrays
     if isinstance(u, RecordStream):
         src = u
     else:
         u = np.asarray(u, float)
         src = _Arrays(u, u)  # the input alone: its chunks' second half is unused
     lo, hi = src.u_min, src.u_max
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise ValueError(f"`u` must be finite to find where the plays settle; its range is [{lo}, {hi}]")
     band = tolerance * (hi - lo)
     if not hi - lo > 0:
         return 0
@@ -398,5 +405,7 @@ def settled_start(u, *, tolerance: float = 0.02) -> int:
         pos += len(uc)
         if first_max is not None and first_min is not None:
             break
+    # The input reaches its own maximum and minimum (hi - lo > 0), so both were found.
+    assert first_max is not None and first_min is not None
     k = max(first_max, first_min)
     return k if k <= src.n_samples // 2 else 0

@@ -52,7 +52,7 @@ class PaperCase:
 
     def input(self) -> np.ndarray:
         t = self.time()
-        return sum(a * np.sin(2 * np.pi * f * t) for a, f in zip(self.amplitudes, self.frequencies))
+        return sum((a * np.sin(2 * np.pi * f * t) for a, f in zip(self.amplitudes, self.frequencies)), np.zeros_like(t))
 
 
 CASES = {

@@ -81,7 +81,8 @@ def make_settings(
     dtype = jnp.dtype(jnp.result_type(float) if dtype is None else dtype)
     if dtype not in (jnp.dtype("float32"), jnp.dtype("float64")):
         raise ValueError(f"`dtype` must be float32 or float64, got {dtype}")
-    if dtype == jnp.dtype("float64") and not jax.config.jax_enable_x64:
+    # JAX's options are attributes its Config object sets at run time, unknown to its annotations.
+    if dtype == jnp.dtype("float64") and not jax.config.jax_enable_x64:  # type: ignore[attr-defined]
         raise ValueError("float64 needs jax_enable_x64; enable it or ask for float32")
     if play_method not in METHODS:
         raise ValueError(f"unknown play method {play_method!r}; choose one of {METHODS}")

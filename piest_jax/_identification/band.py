@@ -147,6 +147,7 @@ def prediction_band(
     taus = weights_c = z0 = None
     if k:
         c = fit.creep
+        assert c is not None  # n_lags counts the creep's lags
         taus, weights_c = c.time_constants, c.weights
         default_z = u[0] if c.initial_states is None else c.initial_states
         z0 = _states(default_z if lag_states is None else lag_states, k, "lag_states", dtype)

@@ -13,7 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .._models.preisach import relay_chunk
+from .._models.gpi import GeneralizedPI
+from .._models.preisach import Preisach, relay_chunk
 from .._operators.play import Method
 from . import covariance as _cov
 from . import gpi_covariance
@@ -33,6 +34,7 @@ def band_parts(fit: GPIFit | PreisachFit, u, initial_states=None, chunk: int = _
     u = jnp.asarray(u, dtype)
     cov = np.asarray(fit.covariance, np.float64)
     if isinstance(fit, GPIFit):
+        assert isinstance(model, GeneralizedPI)  # a GPIFit's model, as is its copy with other states
         n, k = model.n_plays, model.n_terms
         states = any(name.startswith("initial_states") for name in fit.parameter_names)
         if states and initial_states is not None:
@@ -44,6 +46,7 @@ def band_parts(fit: GPIFit | PreisachFit, u, initial_states=None, chunk: int = _
         pred, J = gpi_covariance.jacobian(theta.astype(dtype), u, x0, n, k, states)
         var = jnp.sum((J @ jnp.asarray(cov, dtype)) * J, axis=1)
     else:
+        assert isinstance(model, Preisach)  # a PreisachFit's model, as is its copy with other states
         keep = triangle_columns(*model.shape)
         x0 = model._start(u).astype(dtype)
         pred = model(u)

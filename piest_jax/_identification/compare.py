@@ -16,11 +16,14 @@ Levenberg-Marquardt from the model's own states (the plays relaxed at u_0 when n
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
 from .. import _checks
 from .._custom_types import Scalar, Signal
 from .._models.composite import HysteresisModel
+from .._models.gpi import GeneralizedPI
+from .._models.preisach import Preisach
 
 
 class Comparison(eqx.Module):
@@ -32,13 +35,16 @@ class Comparison(eqx.Module):
     - `rmse`: root-mean-square error of `prediction`.
     - `fit_percent`: 100 (1 - ||e|| / ||y - mean(y)||), the sysid fit (100 is perfect, 0 is no
       better than the record's mean, negative is worse).
-    - `model`: the [`HysteresisModel`][] with the initial conditions used (estimated or stated).
+    - `model`: the [`HysteresisModel`][] with the initial conditions used (estimated or stated);
+      for the models that saturate, judged by their raw prediction, the
+      [`GeneralizedPI`][piest_jax.GeneralizedPI] or [`Preisach`][piest_jax.Preisach] model.
     """
 
-    prediction: Signal
-    rmse: Scalar
+    # A saturating model's validation (`identify`) holds a NumPy prediction and a float RMSE.
+    prediction: Signal | np.ndarray
+    rmse: Scalar | float
     fit_percent: Scalar
-    model: HysteresisModel
+    model: HysteresisModel | GeneralizedPI | Preisach
 
 
 def _as_model(model) -> HysteresisModel:
@@ -83,7 +89,7 @@ def _estimate(model, u, y, max_steps, rtol, atol):
     if model.creep is not None:
         z = model.creep.initial_states
         theta["z0"] = jnp.broadcast_to(u[0], (model.n_lags,)) if z is None else z
-    sol = optx.least_squares(
+    sol: optx.Solution = optx.least_squares(
         _residuals,
         optx.LevenbergMarquardt(rtol=rtol, atol=atol),
         theta,

@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+from jaxtyping import Array
 
 from .fit_data import Scales
 from .time_constants import LAG_RATIO, lag_log_tau
@@ -110,7 +111,7 @@ def _natural(layout: Layout, theta, s: Scales, x0, z0, dt):
     r = jnp.concatenate([jnp.zeros(1, theta.dtype), p["thresholds"]]) / s.u_half
     x = (p["initial_states"] - s.u_mid) / s.u_half if layout.states else x0
     total = jnp.sum(p["weights"])
-    lags = ()
+    lags: tuple[Array, ...] = ()
     if layout.k:
         c = p["creep.weights"] * s.u_half / s.y_half
         z = (p["creep.initial_states"] - s.u_mid) / s.u_half if layout.states else z0

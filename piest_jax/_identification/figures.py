@@ -106,7 +106,7 @@ def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
     else:
         a2.plot(t, e, lw=0.6)
     if mask is not None and not np.all(np.asarray(mask)):
-        a2.axvspan(t[0], t[np.argmax(used)], color="0.85", label="not fitted")
+        a2.axvspan(t[0], t[np.argmax(np.asarray(mask) > 0)], color="0.85", label="not fitted")
         # Scaled to the fitted samples: a transient left out would otherwise flatten the rest.
         eu = e[used]
         pad = 0.1 * max(np.ptp(eu), 1e-12)

@@ -54,22 +54,22 @@ def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2, extra=
             f"{what} need {per_play * n_plays + 1 + extra} parameters but only {n_fit} samples "
             "are fitted; use fewer plays or a longer record"
         )
-    un, yn = np.asarray(u), np.asarray(y)
+    u_np, y_np = np.asarray(u), np.asarray(y)
     # Finite but huge outputs overflow when residuals in the data's units are squared and summed
     # (the RMSE); say so instead of returning an infinite RMSE. The input is only normalised, so
     # its range must merely be finite.
-    limit = float(np.sqrt(np.finfo(un.dtype).max / max(n_fit, 1)))
-    if np.max(np.abs(yn)) >= limit:
+    limit = float(np.sqrt(np.finfo(u_np.dtype).max / max(n_fit, 1)))
+    if np.max(np.abs(y_np)) >= limit:
         raise ValueError(
-            f"`y` has values up to {np.max(np.abs(yn)):.3g}, out of the range the fit can square "
-            f"and sum in {un.dtype.name} (below {limit:.3g}); rescale it, e.g. to other units"
+            f"`y` has values up to {np.max(np.abs(y_np)):.3g}, out of the range the fit can square "
+            f"and sum in {u_np.dtype.name} (below {limit:.3g}); rescale it, e.g. to other units"
         )
-    u_lo, u_hi = float(un.min()), float(un.max())
+    u_lo, u_hi = float(u_np.min()), float(u_np.max())
     if not np.isfinite(u_hi - u_lo):
-        raise ValueError(f"the input's range {u_lo:.3g} to {u_hi:.3g} overflows {un.dtype.name}; rescale `u`")
+        raise ValueError(f"the input's range {u_lo:.3g} to {u_hi:.3g} overflows {u_np.dtype.name}; rescale `u`")
     if not u_hi > u_lo:
         raise ValueError(f"the input has zero range (constant {u_lo:.6g}): it excites no play")
-    y_lo, y_hi = float(yn.min()), float(yn.max())
+    y_lo, y_hi = float(y_np.min()), float(y_np.max())
     y_half = 0.5 * (y_hi - y_lo) if y_hi > y_lo else 1.0
     s = Scales(
         *(jnp.asarray(v, dtype) for v in (0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo), 0.5 * (y_lo + y_hi), y_half))

@@ -137,7 +137,7 @@ def _solve_starts(r0s, u, y, x0, mask, r_bound, *, n_terms, fit_initial_states, 
 
     def one(r0):
         p0 = _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states)
-        sol = optx.least_squares(
+        sol: optx.Solution = optx.least_squares(
             _residuals, least_squares_solver(solver, rtol, atol), p0, args=args, max_steps=max_steps, throw=False
         )
         loss = jnp.sum(_residuals(sol.value, args) ** 2)

@@ -407,11 +407,15 @@ def _covariance(method, model, theta, G, pen, active, monotone, u, y, w, scales,
         window = _cov.bandwidth(e[used])
         keep = triangle_columns(*active.shape)
         dtype = jnp.result_type(float)
+        half_widths, centres, blur, x0 = (jnp.asarray(a, dtype) for a in grid)
         blocks = np.asarray(
             preisach_covariance.score_blocks(
                 jnp.asarray((u - u_mid) / u_half, dtype),
                 jnp.asarray(w * e, dtype),
-                *(jnp.asarray(a, dtype) for a in grid),
+                half_widths,
+                centres,
+                blur,
+                x0,
                 jnp.asarray(keep),
                 window,
                 max(int(chunk), window),

@@ -18,6 +18,9 @@ import dataclasses
 import numpy as np
 
 from .._data.record import Record
+from .._models.composite import HysteresisModel
+from .._models.gpi import GeneralizedPI
+from .._models.preisach import Preisach
 from . import covariance as _cov
 from .band import PredictionBand, prediction_band
 from .compare import Comparison, compare
@@ -120,8 +123,13 @@ class Identification:
         infinite there (null in the file).
         """
         f, rec, v = self.fit, self.record, self.validation
-        saturating = isinstance(f, GPIFit | PreisachFit)
-        model = f.model if saturating else f.model()
+        model: HysteresisModel | GeneralizedPI | Preisach
+        if isinstance(f, GPIFit | PreisachFit):
+            model = f.model
+            fit_keys = report_keys(f, self.positive_weights)
+        else:
+            model = f.model()
+            fit_keys = _pi_keys(f, model)
         # The model's keys (schema, structure, parameters, creep) as `save_model` writes them,
         # so that `load_model` reads fit.json back; then how it was fitted.
         report = {
@@ -129,7 +137,7 @@ class Identification:
             "data": rec.source,
             "n_samples": rec.n_samples,
             "dt": rec.dt,
-            **(report_keys(f, self.positive_weights) if saturating else _pi_keys(f, model)),
+            **fit_keys,
         }
         if not isinstance(f, PreisachFit):
             report["solver"] = {
@@ -490,8 +498,8 @@ def _choose_and_fit(record, p: Plan, *, model, plays, criterion, quiet, **fit_op
         return sel.fit, sel
     if len(p.plays) == 1 and len(p.lags) == 1:
         return fit_pi(u, y, p.plays[0], n_lags=p.lags[0], dt=record.dt, **fit_options), None
-    sel = select_model(u, y, record.dt, p.plays, p.lags, quiet=quiet, **fit_options)
-    return sel.fit, sel
+    choice = select_model(u, y, record.dt, p.plays, p.lags, quiet=quiet, **fit_options)
+    return choice.fit, choice
 
 
 def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Validation:
@@ -515,6 +523,7 @@ def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Va
         # Fitted states keep their uncertainty; states given or taken from the record are known.
         raw_band = prediction_band(fit, val.u, initial_states=None if fit_initial_states else states)
         e = ic.model
+        assert isinstance(e, HysteresisModel)  # compare() returns the HysteresisModel it ran
         ic_band = prediction_band(
             fit,
             val.u,

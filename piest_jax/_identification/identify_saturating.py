@@ -23,7 +23,7 @@ GRID = (16, 16)  # half-widths x centres: the input range resolved in sixteenths
 # The PI path's options with their defaults; a value other than the default is refused by a
 # model that does not use it (each message names the option as `name`).
 _PI_ONLY = {"lags": None, "time_constants": None, "candidates": None, "criterion": None}
-_IGNORED = {
+_IGNORED: dict[str, dict[str, object]] = {
     "gpi": {**_PI_ONLY, "positive_weights": True, "grid": None, "smoothness": None},
     "preisach": {
         **_PI_ONLY,
@@ -72,7 +72,7 @@ def _same(value, default) -> bool:
 
 
 def _count(value) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= 1
+    return isinstance(value, int | np.integer) and not isinstance(value, bool) and bool(value >= 1)
 
 
 def fit_saturating(

@@ -229,6 +229,7 @@ register_structure("pi", (PIModel, PIFit, PIOperator, HysteresisModel), _pi_keys
 
 def _creep_keys(model: HysteresisModel) -> dict:
     c = model.creep
+    assert c is not None  # the structure "pi+creep" names models with a creep only
     creep = {
         "time_constants": np.asarray(c.time_constants, np.float64),
         "weights": np.asarray(c.weights, np.float64),

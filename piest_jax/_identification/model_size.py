@@ -175,8 +175,8 @@ def select_plays(
     y = _checks.signal(y, "y")
     T = u.shape[0]
     fits = {}
-    scores = []
-    tried = []
+    scores: list[float] = []
+    tried: list[int] = []
     per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
     largest = max(cands)
 

@@ -192,6 +192,7 @@ def start_regression(r0, log_tau0, data, st: Settings):
             x = play_step(x, ut, r0)
             if z is None:
                 return (x, z), x * on
+            assert a is not None and k_on is not None  # lags run only with log_tau0
             z = lag_step(z, ut, a)
             return (x, z), jnp.concatenate([x * on, z * k_on])
 

@@ -86,6 +86,7 @@ def fields(
         if method == "gauss-newton":
             meat = sigma**2 * Gf
         else:
+            assert blocks is not None and window is not None  # Newey-West's, given with it
             meat = blocks[np.ix_(idx, idx)] / window * n / (n - window + 1) * n / dof
         cov_f = Ainv @ meat @ Ainv
         cov_f = 0.5 * (cov_f + cov_f.T)

@@ -30,7 +30,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
@@ -150,7 +150,7 @@ class GeneralizedPI(eqx.Module):
         v = jnp.asarray(v, self.centres.dtype)
         return output_function(v, self.log_amplitudes, self.centres, self.log_scales, self.offset)
 
-    def output_inverse(self, y: Array, n_iter: int = 80) -> Array:
+    def output_inverse(self, y: ArrayLike, n_iter: int = 80) -> Array:
         """g⁻¹(y) elementwise, for targets inside `output_range()` (not checked here).
 
         **Arguments:** `y`, targets (any shape); `n_iter`, bisection steps (each halves the

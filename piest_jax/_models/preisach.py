@@ -130,7 +130,7 @@ class Preisach(eqx.Module):
     offset: Array
     initial_states: Float[Array, " widths"] | None
     blur: Centres
-    method: str = eqx.field(static=True)
+    method: Method = eqx.field(static=True)
 
     def __init__(
         self, half_widths, centres, density, offset=0.0, initial_states=None, blur=None, method: Method = "scan"
@@ -183,7 +183,8 @@ class Preisach(eqx.Module):
     @property
     def shape(self) -> tuple[int, int]:
         """(K, M): the number of half-widths and of centres."""
-        return self.density.shape
+        K, M = self.density.shape
+        return K, M
 
     def _start(self, u: Array) -> Array:
         if self.initial_states is None:

@@ -57,7 +57,7 @@ class PIOperator(AbstractHysteresisOperator):
     thresholds: Thresholds
     weights: Weights
     initial_states: States
-    method: str = eqx.field(static=True, default="scan")
+    method: Method = eqx.field(static=True, default="scan")
 
     def __init__(self, thresholds, weights, initial_states=0.0, *, method: Method = "scan"):
         r = _checks.thresholds(thresholds, "thresholds", sorted_=True)

@@ -122,7 +122,7 @@ def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
     return _scan(u, r, x0)
 
 
-def _prepare(u, r, x0, x0_name="x0", method="scan"):
+def _prepare(u, r, x0, x0_name="x0", method="scan") -> tuple[Array, Array, Array, Array]:
     u = _checks.signal(u)
     if not _uses_kernel(method):
         u = _checks.finite(u, "u")
