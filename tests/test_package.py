@@ -4,6 +4,7 @@ helpers that leave matplotlib's backend and pyplot alone."""
 import subprocess
 import sys
 from importlib import metadata
+from pathlib import Path
 
 import numpy as np
 
@@ -298,3 +299,25 @@ print(code, matplotlib.get_backend(), plt.get_fignums())
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split("\n")[-2] == "0 pdf []"
     assert (tmp_path / "o" / "loop.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_lowest_versions_job_pins_the_floors():
+    # .ci/run's second job installs .ci/lowest.txt: each dependency of the library and of the
+    # `cli` extra at exactly the floor pyproject.toml declares, so a floor the code outgrows fails.
+    import re
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    floors = {}
+    for spec in [*project["dependencies"], *project["optional-dependencies"]["cli"]]:
+        m = re.fullmatch(r"([A-Za-z0-9_.-]+)>=([0-9.]+)", spec)
+        assert m, f"{spec!r} has no plain floor"
+        floors[m[1].lower()] = m[2]
+    pins = dict(
+        line.split("==")
+        for line in (root / ".ci" / "lowest.txt").read_text().splitlines()
+        if "==" in line and not line.startswith("#")
+    )
+    assert {k: pins.get(k) for k in floors} == floors
+    assert pins["jaxlib"] == floors["jax"]
