@@ -142,6 +142,19 @@ def test_cli_writes_the_report(tmp_path, capsys):
     finally:
         jax.config.update("jax_enable_x64", before)
     assert np.allclose(rep["weights_final"], res.weights, rtol=1e-9)
+    # Everything but the command's own keys is the library result's to_json.
+    want = json.loads(pj.write_json(tmp_path / "lib.json", res.to_json()).read_text())
+    assert set(rep) - set(want) == {"data", "estimator", "settings", "offset_estimated"}
+    _assert_close_tree({k: rep[k] for k in want}, want)
+
+
+def _assert_close_tree(a, b, path="report"):
+    if isinstance(b, dict):
+        assert isinstance(a, dict) and a.keys() == b.keys(), path
+        for k in b:
+            _assert_close_tree(a[k], b[k], f"{path}.{k}")
+    else:
+        np.testing.assert_allclose(np.asarray(a, float), np.asarray(b, float), rtol=1e-9, atol=1e-12, err_msg=path)
 
 
 @pytest.mark.parametrize(

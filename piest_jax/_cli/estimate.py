@@ -211,24 +211,7 @@ def run(args) -> int:
         estimator=args.estimator,
         settings=settings,
         offset_estimated=not args.no_offset,
-        start_time=t0 + k0 * rec.dt,
-        start_sample=k0,
-        thresholds=res.thresholds,
-        initial_states=res.initial_states,
-        weights_final=res.weights,
-        offset_final=float(res.offset),
-        final_rmse=res.final_rmse,
-        trajectory=dict(
-            t=t0 + res.t, weights=res.weights_trajectory, offset=res.offset_trajectory, error_rms=res.error_rms
-        ),
-        pe=dict(
-            window_s=(rec.n_samples - k0) // 10 * rec.dt if window is None else window * rec.dt,
-            t=t0 + res.window_t,
-            level=res.pe_levels,
-            exciting=res.exciting,
-            all_exciting=bool(np.all(np.asarray(res.exciting))),
-        ),
-        certificate=dict(t=t0 + res.bound_t, gram_bound=res.gram_bound),
+        **res.to_json(t0),
         **record_fields(rec, args),
     )
     written = [_io.write_json(out / "estimate.json", report)]

@@ -53,6 +53,8 @@ class OnlineEstimate(eqx.Module):
     - `bound_t` (W,), `gram_bound` (W,): for `ContinuousRLS`, the bound on the relative
       noise-free weight error ‖Ŵ − W‖ / ‖Ŵ0 − W‖ from the information accumulated up to the end of
       each window (the `gram_bound` of [`convergence_certificate`][]); empty otherwise.
+    - `start` (the first estimated sample), `window` (samples per PE window), `dt` (seconds per
+      sample): how the record was read. Times above count from the record's first sample.
     """
 
     thresholds: Float[Array, " n"]
@@ -69,6 +71,41 @@ class OnlineEstimate(eqx.Module):
     exciting: Array
     bound_t: Float[Array, " W"]
     gram_bound: Float[Array, " W"]
+    start: int = eqx.field(static=True, default=0)
+    window: int = eqx.field(static=True, default=0)
+    dt: float = eqx.field(static=True, default=1.0)
+
+    def to_json(self, t0: float = 0.0) -> dict:
+        """The estimate as `piest estimate` writes it to estimate.json (less the command's own
+        keys: the data file, the estimator's name and settings, the record's facts).
+
+        **Arguments:** `t0`, the time of the record's first sample, added to every time.
+
+        **Returns:** a JSON-ready dict: `start_time`, `start_sample`, `thresholds`,
+        `initial_states`, `weights_final`, `offset_final`, `final_rmse`, `trajectory` (`t`,
+        `weights`, `offset`, `error_rms`), `pe` (`window_s`, `t`, `level`, `exciting`,
+        `all_exciting`) and `certificate` (`t`, `gram_bound`).
+        """
+        return dict(
+            start_time=t0 + self.start * self.dt,
+            start_sample=self.start,
+            thresholds=self.thresholds,
+            initial_states=self.initial_states,
+            weights_final=self.weights,
+            offset_final=float(self.offset),
+            final_rmse=self.final_rmse,
+            trajectory=dict(
+                t=t0 + self.t, weights=self.weights_trajectory, offset=self.offset_trajectory, error_rms=self.error_rms
+            ),
+            pe=dict(
+                window_s=self.window * self.dt,
+                t=t0 + self.window_t,
+                level=self.pe_levels,
+                exciting=self.exciting,
+                all_exciting=bool(np.all(np.asarray(self.exciting))),
+            ),
+            certificate=dict(t=t0 + self.bound_t, gram_bound=self.gram_bound),
+        )
 
 
 def _regressor_chunk(u, r, x0, a, offset: bool):
@@ -344,6 +381,9 @@ def estimate_record(
         exciting=jnp.asarray(exciting),
         bound_t=jnp.asarray(chunk_t),
         gram_bound=jnp.asarray(bound),
+        start=start,
+        window=window,
+        dt=float(dt),
     )
 
 
