@@ -5,6 +5,7 @@ import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference import pi as reference_pi  # a plain loop, independent of the library
 
 import piest_jax as pj
 from piest_jax._identification import fit as _fit
@@ -14,16 +15,6 @@ R_TRUE = np.array([0.0, 0.5, 1.2])
 W_TRUE = np.array([1.0, 0.6, 0.4])
 C_TRUE = 0.3
 T = 400
-
-
-def reference_pi(u, r, w, x0):
-    """A plain NumPy loop: the PI operator's output, independent of the library's scan."""
-    x = np.broadcast_to(np.asarray(x0, float), r.shape).copy()
-    out = np.empty(len(u))
-    for t, ut in enumerate(u):
-        x = np.maximum(ut - r, np.minimum(ut + r, x))
-        out[t] = w @ x
-    return out
 
 
 def record(T=T):
