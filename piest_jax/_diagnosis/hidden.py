@@ -46,7 +46,7 @@ def _input(rng, n, dt):
 
 def _pi(u, r, w, x0, rt=None):
     """The PI operator's output: the plays (thresholds r, or time-varying rt) weighted by w."""
-    return np.ascontiguousarray(plays(u, r if rt is None else rt, np.asarray(x0, float)[None])[0]) @ w
+    return plays(u, r if rt is None else rt, np.asarray(x0, float)[None])[0] @ w
 
 
 def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0.0):

@@ -14,14 +14,20 @@ derivative taken exactly at a single kink is the average of the two one-sided de
 else it is exact. The associative form regroups the clamps, so at a kink it may return another
 one-sided combination; away from kinks both agree. A zero threshold lies on the boundary of r >= 0,
 so a derivative with respect to it is not a meaningful sensitivity.
+
+The thresholds may vary over time, r of shape (T, n) with one row per sample: the step at sample t
+then clamps to [u_t - r_t, u_t + r_t] (rate-dependent hysteresis, where the loops widen with the
+input's rate). The clamps still compose into clamps, so the associative form holds as well; the
+compiled kernel takes constant thresholds only, and on a CPU backend time-varying ones run on the
+scan.
 """
 
-from typing import Literal
+from typing import Literal, TypeAlias
 
 import jax
 import jax.numpy as jnp
 from jax import lax
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike, Float
 
 from .. import _checks
 from .._custom_types import ScalarLike, SignalLike, ThresholdsLike
@@ -30,6 +36,8 @@ Method = Literal["scan", "associative", "kernel", "auto"]
 # "kernel" is the compiled CPU kernel (`kernel/`); "auto" takes it on CPU when built, the associative
 # scan on accelerators, else the scan (`resolved`).
 METHODS = ("scan", "associative", "kernel", "auto")
+
+TimeVaryingThresholdsLike: TypeAlias = Float[ArrayLike, "time plays"]
 
 
 def play_step(x: Array, u: Array, r: Array) -> Array:
@@ -50,6 +58,15 @@ def play_step(x: Array, u: Array, r: Array) -> Array:
 # eager `lax.scan` over a fresh closure compiles (and keeps) a new executable on every call.
 @jax.jit
 def _scan(u: Array, r: Array, x0: Array) -> Array:
+    if r.ndim == 2:
+
+        def step_varying(x, ur):
+            x = play_step(x, ur[0], ur[1])
+            return x, x
+
+        _, xs = lax.scan(step_varying, x0, (u, r))
+        return xs
+
     def step(x, ut):
         x = play_step(x, ut, r)
         return x, x
@@ -76,16 +93,20 @@ def _associative(u: Array, r: Array, x0: Array) -> Array:
     return jnp.maximum(lo_c, jnp.minimum(hi_c, x0))
 
 
-def resolved(method: str) -> str:
+def resolved(method: str, *, time_varying: bool = False) -> str:
     """The play method that runs here for `method`: `"scan"`, `"associative"` or `"kernel"`.
 
     `"auto"` is the compiled kernel on a CPU backend where it is built, the associative scan on
     an accelerator (where one step of the sequential scan is a pass of a device loop: on an H100
     the associative form ran 330 to 3,600 times faster on one signal and 7 times on a batch of
     4096, `experiments/bench_gpu.py`), and the scan otherwise. `"kernel"` without the compiled
-    extension falls back to the scan (warning once); on an accelerator it is refused.
+    extension falls back to the scan (warning once); on an accelerator it is refused. The kernel
+    takes constant thresholds only: for time-varying ones `"kernel"` and `"auto"` are the scan on
+    a CPU backend, without a warning (there, on one signal, the scan ran several times faster than
+    the associative form).
 
-    **Arguments:** `method`, one of `METHODS`.
+    **Arguments:** `method`, one of `METHODS`; `time_varying`, whether the thresholds vary over
+    time (shape (T, n)).
 
     **Returns:** the method name that runs.
     """
@@ -94,6 +115,8 @@ def resolved(method: str) -> str:
     if method == "auto" and on_accelerator():
         return "associative"
     if method in ("kernel", "auto"):
+        if time_varying and not on_accelerator():
+            return "scan"
         from . import kernel as _kernel
 
         return "kernel" if _kernel.use_kernel(method) else "scan"
@@ -105,14 +128,14 @@ def on_accelerator() -> bool:
     return jax.default_backend() != "cpu"
 
 
-def _uses_kernel(method: str) -> bool:
+def _uses_kernel(method: str, time_varying: bool = False) -> bool:
     """Whether `method` runs the compiled kernel here (it checks its input for NaN/inf itself)."""
-    return method in ("kernel", "auto") and resolved(method) == "kernel"
+    return method in ("kernel", "auto") and resolved(method, time_varying=time_varying) == "kernel"
 
 
 def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
-    """Play outputs (T, n) for thresholds r (n,) and initial states x0 (n,)."""
-    method = resolved(method)
+    """Play outputs (T, n) for thresholds r (n,) or time-varying (T, n) and initial states x0 (n,)."""
+    method = resolved(method, time_varying=r.ndim == 2)
     if method == "kernel":
         from . import kernel as _kernel
 
@@ -122,23 +145,39 @@ def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
     return _scan(u, r, x0)
 
 
+def _thresholds(r: Array, n_samples: int) -> Array:
+    """Thresholds: a scalar, a vector (n,) or time-varying (T, n), finite and non-negative."""
+    if r.ndim < 2:
+        return _checks.thresholds(r, "r")
+    if r.ndim > 2 or r.shape[0] != n_samples:
+        raise ValueError(
+            f"`r` must be a scalar or a vector (n,), or ({n_samples}, n) for thresholds that vary "
+            f"over time (one row per sample of `u`); got shape {r.shape}"
+        )
+    if r.shape[1] < 1:
+        raise ValueError(f"`r` is empty: its shape {r.shape} holds no play")
+    # The value checks are those of a bank, on every sample's thresholds at once.
+    return _checks.thresholds(r.reshape(-1), "r").reshape(r.shape)
+
+
 def _prepare(u, r, x0, x0_name="x0", method="scan") -> tuple[Array, Array, Array, Array]:
     u = _checks.signal(u)
-    if not _uses_kernel(method):
+    r = _checks.as_float_array(r, "r")
+    if not _uses_kernel(method, time_varying=r.ndim == 2):
         u = _checks.finite(u, "u")
-    r = _checks.thresholds(r, "r")
-    n = None if r.ndim == 0 else r.shape[0]
+    r = _thresholds(r, u.shape[0])
+    n = None if r.ndim == 0 else r.shape[-1]
     x0 = _checks.per_play(x0, n, x0_name)
     dtype = jnp.result_type(u, r, x0)
     u, r, x0 = u.astype(dtype), r.astype(dtype), x0.astype(dtype)
     rv = jnp.atleast_1d(r)
-    x0v = jnp.broadcast_to(x0, rv.shape)
+    x0v = jnp.broadcast_to(x0, rv.shape[-1:])
     return u, r, rv, x0v
 
 
 def play(
     u: SignalLike,
-    r: ThresholdsLike,
+    r: ThresholdsLike | TimeVaryingThresholdsLike,
     x0: ScalarLike | ThresholdsLike = 0.0,
     *,
     method: Method = "scan",
@@ -146,20 +185,24 @@ def play(
     """The play operator H_r[u] (paper eq. 1) on a sampled input.
 
     The state before the first sample is `x0`, so the first output is
-    max(u_0 - r, min(u_0 + r, x0)) (paper eq. 2); `x0` need not be zero.
+    max(u_0 - r, min(u_0 + r, x0)) (paper eq. 2); `x0` need not be zero. Thresholds that vary
+    over time (T, n) give each sample its own: x_t = max(u_t - r_t, min(u_t + r_t, x_{t-1})).
 
     **Arguments:**
 
     - `u`: the input signal, shape (T,).
-    - `r`: one threshold (scalar) or a bank of thresholds (n,), all >= 0.
+    - `r`: one threshold (scalar), a bank of thresholds (n,), or thresholds that vary over time
+      (T, n), one row per sample of `u`; all >= 0.
     - `x0`: the initial state(s), a scalar or (n,).
     - `method`: `"scan"` (sequential `lax.scan`, the reference), `"associative"`
       (`lax.associative_scan`, O(log T) depth, same outputs to the last bit), `"kernel"` (the
       compiled CPU kernel, same outputs to the last bit; falls back to the scan with a warning when
       it was not built) or `"auto"` (the kernel on a CPU backend when built, the associative scan
-      on an accelerator, where it runs faster).
+      on an accelerator, where it runs faster). The kernel takes constant thresholds only: with
+      time-varying ones, `"kernel"` and `"auto"` run the scan on a CPU backend (no warning).
 
-    **Returns:** the play output, (T,) for a scalar `r` and (T, n) for a vector `r`.
+    **Returns:** the play output, (T,) for a scalar `r` and (T, n) for a vector or time-varying
+    `r`.
     """
     u, r, rv, x0v = _prepare(u, r, x0, method=method)
     out = _bank(u, rv, x0v, method)
@@ -168,7 +211,7 @@ def play(
 
 def stop(
     u: SignalLike,
-    r: ThresholdsLike,
+    r: ThresholdsLike | TimeVaryingThresholdsLike,
     e0: ScalarLike | ThresholdsLike = 0.0,
     *,
     method: Method = "scan",
@@ -177,12 +220,13 @@ def stop(
 
     Its output always lies in [-r, r] and follows e_t = clamp(e_{t-1} + u_t - u_{t-1}, -r, r), with
     `e0` the stop's state before the first sample (a relaxed stop has e0 = 0). This is the play with
-    initial state u_0 - e0.
+    initial state u_0 - e0. With thresholds that vary over time the bound at sample t is r_t.
 
     **Arguments:**
 
     - `u`: the input signal, shape (T,).
-    - `r`: one threshold (scalar) or a bank of thresholds (n,), all >= 0.
+    - `r`: one threshold (scalar), a bank of thresholds (n,), or thresholds that vary over time
+      (T, n); all >= 0.
     - `e0`: the stop's initial state(s), a scalar or (n,).
     - `method`: as for [`play`][].
 
