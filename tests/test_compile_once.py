@@ -10,28 +10,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_count import Compiles
 
 import piest_jax as pj
-
-COMPILE = "/jax/core/compile/backend_compile_duration"
-
-
-class Compiles:
-    """Counts XLA backend compilations while active."""
-
-    def __init__(self):
-        self.count = 0
-
-    def __call__(self, event, duration, **kwargs):
-        if event == COMPILE:
-            self.count += 1
-
-    def __enter__(self):
-        jax.monitoring.register_event_duration_secs_listener(self)
-        return self
-
-    def __exit__(self, *exc):
-        jax.monitoring.unregister_event_duration_listener(self)
 
 
 @pytest.fixture(scope="module")

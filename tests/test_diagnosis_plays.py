@@ -9,12 +9,11 @@ time-varying thresholds, several batches of initial states and several `keep` pa
 import jax
 import numpy as np
 import pytest
+from compile_count import Compiles
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from piest_jax._diagnosis import basis as _basis
-
-COMPILE = "/jax/core/compile/backend_compile_duration"
 
 
 def _loop_plays(g, r, x0, keep=None):
@@ -104,22 +103,6 @@ def test_plays_return_a_fresh_writable_array(rng):
     )
 
 
-class _Compiles:
-    def __init__(self):
-        self.count = 0
-
-    def __call__(self, event, duration, **kwargs):
-        if event == COMPILE:
-            self.count += 1
-
-    def __enter__(self):
-        jax.monitoring.register_event_duration_secs_listener(self)
-        return self
-
-    def __exit__(self, *exc):
-        jax.monitoring.unregister_event_duration_listener(self)
-
-
 @pytest.mark.parametrize("varying", [False, True])
 def test_nearby_lengths_compile_once(rng, varying):
     # The search calls the plays hundreds of times on one record, and nearby records differ in
@@ -130,7 +113,7 @@ def test_nearby_lengths_compile_once(rng, varying):
         return _basis.plays(g, r, np.zeros((2, _basis.N_PLAYS)), np.arange(0, n, 4))
 
     call(1900)
-    with _Compiles() as compiles:
+    with Compiles() as compiles:
         for n in (1900, 1901, 1950, 2040):
             call(n)
     assert compiles.count == 0
