@@ -21,12 +21,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jax import lax
 
 from .._identification.fit import _softplus_inv
 from .._identification.fit_data import pad_count
 from .._identification.solvers import SOLVERS as SOLVERS
 from .._identification.solvers import check_solver, least_squares_solver, result_name
+from .._operators.play import play
 from .basis import N_PLAYS, THRESHOLDS
 from .effects import EFFECT, chain
 from .model import output_slices
@@ -87,13 +87,9 @@ def _hysteresis(theta, st: Structure, u, rho):
     for e, s in effects:
         x0 = e.jax_initial_states(theta, s, g[0], x0)
     w = jax.nn.softplus(theta["weights"])
-
-    def step(x, gr):
-        x = jnp.clip(x, gr[0] - gr[1], gr[0] + gr[1])
-        return x, jnp.dot(w, x)
-
-    _, v = lax.scan(step, x0, (g, r))
-    return v + theta["offset"]
+    # The operator's own recurrence (the scan: thresholds that vary over time do not take the
+    # kernel, and the solver differentiates through it).
+    return play(g, r, x0, method="scan") @ w + theta["offset"]
 
 
 def model(theta, st: Structure, data, *, transferable_only=False):

@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
+from ..._operators.play import play
 from ..basis import THRESHOLDS, history_states, plays
 from ..effect import AbstractEffect
 
@@ -55,11 +56,10 @@ class InitialState(AbstractEffect):
         return tuple(float(v) for v in theta["turns"]), []
 
     def jax_initial_states(self, theta, static, g0, x0):
+        # The history u0 -> turns -> u0 run through the play operator from relaxed states at u0.
         r = jnp.asarray(THRESHOLDS, g0.dtype)
-        x = jnp.full(r.shape, g0)
-        for a in [*theta["turns"], g0]:
-            x = jnp.clip(x, a - r, a + r)
-        return x
+        history = jnp.stack([*(jnp.asarray(a, g0.dtype) for a in theta["turns"]), g0])
+        return play(history, r, jnp.full(r.shape, g0), method="scan")[-1]
 
     def draw(self, prng, ctx):
         # Memory of an earlier excursion beyond what this record reaches first.
