@@ -53,7 +53,7 @@ _EXPORTS = {
     "triangle": ("._excitation.signals", "triangle"),
     "chirp": ("._excitation.signals", "chirp"),
     "INPUT_FAMILIES": ("._excitation.families", "FAMILIES"),
-    "draw_case": ("._excitation.families", "draw_case"),
+    "draw_case": ("._excitation.draw", "draw_case"),
     "IndependenceCheck": ("._excitation.pe", "IndependenceCheck"),
     "assumption1_ratio": ("._excitation.pe", "assumption1_ratio"),
     "excited_plays": ("._excitation.pe", "excited_plays"),
@@ -210,6 +210,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.design import design_input as design_input
     from ._excitation.design_compare import excitation_figure as excitation_figure
     from ._excitation.design_compare import excitation_report as excitation_report
+    from ._excitation.draw import draw_case as draw_case
     from ._excitation.draw_metrics import draw_statistics as draw_statistics
     from ._excitation.exact_arithmetic import exact_draw_pe as exact_draw_pe
     from ._excitation.exact_arithmetic import exact_window_pe as exact_window_pe
@@ -219,7 +220,6 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._excitation.exact_condition import exact_condition as exact_condition
     from ._excitation.exact_condition import pe_margin as pe_margin
     from ._excitation.families import FAMILIES as INPUT_FAMILIES  # noqa: F401
-    from ._excitation.families import draw_case as draw_case
     from ._excitation.map_figure import pe_map_figure as pe_map_figure
     from ._excitation.map_report import summarise as summarise
     from ._excitation.map_result import PEMap as PEMap

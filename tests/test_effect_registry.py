@@ -28,13 +28,16 @@ def test_registry_is_consistent():
         assert e.name == name and e.summary and e.n_params >= 1
         assert type(e).__module__.endswith(f"effects.{name}")  # one module per effect
     assert set(RECORD_SPECIFIC) == {"initial_state", "offset_drift"}
+    # The search tries and reports candidates in this order: the shipped effects keep theirs.
+    old = ("initial_state", "delay", "linear_dynamics", "rate_dependence", "creep", "asymmetry", "offset_drift")
+    assert EFFECTS[: len(old)] == old
     assert [e.name for e in chain(["offset_drift", "delay", "asymmetry"])] == ["delay", "asymmetry", "offset_drift"]
     with pytest.raises(ValueError, match="unknown effect 'magic'"):
         check_names(["delay", "magic"])
 
 
 def test_an_effect_must_state_what_it_is():
-    with pytest.raises(TypeError, match="does not define summary, rank, n_params"):
+    with pytest.raises(TypeError, match="does not define summary, rank, listed, n_params"):
         type("Half", (AbstractEffect,), {"name": "half"})
 
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from reference import exact_play, exact_rank, exact_window_pe
 
 import piest_jax as pj
-from piest_jax._excitation.families import draw_case
+from piest_jax._excitation.draw import draw_case
 
 
 def _condition(u, r, x0, window, stride=1):

@@ -5,7 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from piest_jax._excitation import families as F
+from piest_jax._excitation import draw as F
+from piest_jax._excitation.families import DEFAULT_FAMILIES
+from piest_jax._excitation.family import AMPLITUDE_RANGE, AbstractInputFamily
 
 T = jnp.arange(800) * 0.01
 N_PLAYS = 5
@@ -52,7 +54,7 @@ def test_inputs_are_finite_bounded_and_vary(family, cases):
     r_max = r[:, -1]
     assert np.all(np.isfinite(u))
     # offset within ±r_max, excursion within the largest amplitude 4 r_max
-    hi = (1 + F.AMPLITUDE_RANGE[1]) * r_max * (1 + 1e-9)
+    hi = (1 + AMPLITUDE_RANGE[1]) * r_max * (1 + 1e-9)
     assert np.all(np.max(np.abs(u), axis=1) <= hi)
     assert np.all(np.ptp(u, axis=1) > 0)
     # the amplitude law covers both sides of Assumption 1 (peak-to-peak 2 r_max)
@@ -131,9 +133,14 @@ def test_registry_is_consistent():
     assert F.FAMILIES == tuple(F.FAMILY)
     for name, fam in F.FAMILY.items():
         assert fam.name == name and type(fam).__module__.endswith(f"families.{name}")  # one module each
-    assert set(F.FAMILIES) - set(F.DEFAULT_FAMILIES) == {"ramp", "touch", "nested"}
-    with pytest.raises(TypeError, match="does not define its name"):
-        type("Nameless", (F.AbstractInputFamily,), {})
+    assert set(F.FAMILIES) - set(DEFAULT_FAMILIES) == {"ramp", "touch", "nested"}
+    # Maps record families by index: the listing order of the shipped families does not move.
+    old = ("sine", "multisine", "noise", "chirp", "triangle", "decaying", "steps", "ramp", "touch", "nested")
+    assert F.FAMILIES[: len(old)] == old
+    with pytest.raises(TypeError, match="does not define name, listed"):
+        type("Nameless", (AbstractInputFamily,), {})
+    with pytest.raises(TypeError, match="does not define listed"):
+        type("Unlisted", (AbstractInputFamily,), {"name": "unlisted"})
 
 
 @pytest.mark.parametrize("family", F.FAMILIES)

@@ -16,7 +16,8 @@ from reference import play as ref_play
 import piest_jax as pj
 from piest_jax._cli import main
 from piest_jax._excitation import montecarlo as M
-from piest_jax._excitation.families import FAMILIES, draw_case
+from piest_jax._excitation.draw import draw_case
+from piest_jax._excitation.families import FAMILIES
 from piest_jax._excitation.signals import triangle
 
 SETTINGS = dict(n_samples=600, n_plays=4, window=150, stride=15, dt=0.01)

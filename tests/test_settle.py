@@ -13,7 +13,7 @@ import piest_jax as pj
 from piest_jax._cli import main
 from piest_jax._excitation import montecarlo as M
 from piest_jax._excitation import settle as S
-from piest_jax._excitation.families import draw_case
+from piest_jax._excitation.draw import draw_case
 
 SETTINGS = dict(n_samples=300, n_plays=4, window=60, stride=15, dt=0.01)
 N_DRAWS, SEED = 60, 5

@@ -28,7 +28,7 @@ import numpy as np
 class AbstractEffect:
     """An effect a plain PI model misses, as the diagnosis models, searches and simulates it.
 
-    Concrete effects are final classes with one instance, registered in `effects/__init__.py`.
+    Concrete effects are final classes, one module each in `effects/`, which finds them.
     """
 
     name: ClassVar[str]
@@ -36,6 +36,9 @@ class AbstractEffect:
     summary: ClassVar[str]
     # Position along the signal chain, within each stage (see the module docstring).
     rank: ClassVar[int]
+    # Its place in the registry's listing (the order the search tries and reports candidates
+    # in): a new effect takes the next free number.
+    listed: ClassVar[int]
     # Parameters added: its linear coefficients plus its grid parameters (the search charges
     # each against the noise).
     n_params: ClassVar[int]
@@ -57,7 +60,7 @@ class AbstractEffect:
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
-        missing = [a for a in ("name", "summary", "rank", "n_params") if not hasattr(cls, a)]
+        missing = [a for a in ("name", "summary", "rank", "listed", "n_params") if not hasattr(cls, a)]
         if missing:
             raise TypeError(f"effect {cls.__name__} does not define {', '.join(missing)}")
 

@@ -17,8 +17,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .. import _checks
 from .._progress import progress
+from .draw import draw_case
 from .draw_metrics import draw_statistics
-from .families import draw_case
 from .map_result import PEMap
 from .map_settings import MapSettings, numerical_tolerance
 from .settle import settle_draws

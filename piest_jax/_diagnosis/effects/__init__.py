@@ -1,26 +1,13 @@
-"""The named effects, one module each, registered here in the order the search lists them.
+"""The named effects, one module each, found here and listed in their `listed` order.
 
-Adding an effect is one new module (a final subclass of `AbstractEffect`) and one line below.
+Adding an effect is one new module in this folder holding a final subclass of `AbstractEffect`
+(`_diagnosis/effect.py`) with the next free `listed` number.
 """
 
+from ..._registry import discover
 from ..effect import AbstractEffect
-from .asymmetry import Asymmetry
-from .creep import Creep
-from .delay import Delay
-from .initial_state import InitialState
-from .linear_dynamics import LinearDynamics
-from .offset_drift import OffsetDrift
-from .rate_dependence import RateDependence
 
-_REGISTERED: tuple[AbstractEffect, ...] = (
-    InitialState(),
-    Delay(),
-    LinearDynamics(),
-    RateDependence(),
-    Creep(),
-    Asymmetry(),
-    OffsetDrift(),
-)
+_REGISTERED: tuple[AbstractEffect, ...] = discover(__name__, __path__, AbstractEffect)
 
 EFFECT: dict[str, AbstractEffect] = {e.name: e for e in _REGISTERED}
 EFFECTS: tuple[str, ...] = tuple(EFFECT)

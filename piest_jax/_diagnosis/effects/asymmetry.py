@@ -41,6 +41,7 @@ class Asymmetry(AbstractEffect):
     name = "asymmetry"
     summary = "loops are not point-symmetric (input envelope, output polynomial)"
     rank = 3
+    listed = 5
     n_params = N_POLY + 1
     play_side = True
     fit_iterations = 5

@@ -40,6 +40,7 @@ class Creep(AbstractEffect):
     name = "creep"
     summary = "after a change the output keeps moving slowly the same way"
     rank = 5
+    listed = 4
     n_params = N_CREEP
     positive = True
     fit_iterations = 2

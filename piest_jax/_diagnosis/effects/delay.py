@@ -33,6 +33,7 @@ class Delay(AbstractEffect):
     name = "delay"
     summary = "the output lags the input by a fixed time"
     rank = 1
+    listed = 1
     n_params = 1
 
     def grid(self, p):

@@ -19,6 +19,7 @@ class InitialState(AbstractEffect):
     name = "initial_state"
     summary = "plays start where an unrecorded input history left them"
     rank = 0
+    listed = 0
     n_params = 2
     record_specific = True
     play_side = True

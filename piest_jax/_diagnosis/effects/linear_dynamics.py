@@ -69,6 +69,7 @@ class LinearDynamics(AbstractEffect):
     name = "linear_dynamics"
     summary = "the output follows through a 1st- or 2nd-order lag (a resonance)"
     rank = 4
+    listed = 2
     n_params = 2
 
     def grid(self, p):

@@ -17,6 +17,7 @@ class OffsetDrift(AbstractEffect):
     name = "offset_drift"
     summary = "the output's zero wanders along the record's time axis"
     rank = 6
+    listed = 6
     n_params = N_DRIFT
     record_specific = True
     time_driven = True

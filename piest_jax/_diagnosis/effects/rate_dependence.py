@@ -22,6 +22,7 @@ class RateDependence(AbstractEffect):
     name = "rate_dependence"
     summary = "loops widen with the input's rate (thresholds grow with |du/dt|)"
     rank = 2
+    listed = 3
     n_params = 2
     play_side = True
 

@@ -1,18 +1,35 @@
-"""Random inputs, threshold sets and initial states for Monte Carlo studies of excitation.
+"""The input families, one module each, found here and listed in their `listed` order.
 
-Each input family is one module (`family.py` says what a family states); `registry.py` lists
-them; `draw.py` turns a key and a family into a case.
+Adding a family is one new module in this folder holding a final subclass of
+`AbstractInputFamily` (`_excitation/family.py`) with the next free `listed` number.
 """
 
-from .draw import draw_case as draw_case
-from .draw import draw_initial_states as draw_initial_states
-from .draw import draw_input as draw_input
-from .draw import draw_thresholds as draw_thresholds
-from .draw import draw_weights as draw_weights
-from .family import AMPLITUDE_RANGE as AMPLITUDE_RANGE
-from .family import FREQUENCY_RANGE as FREQUENCY_RANGE
-from .family import AbstractInputFamily as AbstractInputFamily
-from .registry import DEFAULT_FAMILIES as DEFAULT_FAMILIES
-from .registry import FAMILIES as FAMILIES
-from .registry import FAMILY as FAMILY
-from .registry import family_indices as family_indices
+import numpy as np
+
+from ..._registry import discover
+from ..family import AbstractInputFamily
+
+_REGISTERED: tuple[AbstractInputFamily, ...] = discover(__name__, __path__, AbstractInputFamily)
+
+FAMILY: dict[str, AbstractInputFamily] = {f.name: f for f in _REGISTERED}
+FAMILIES: tuple[str, ...] = tuple(FAMILY)
+# The families a map draws from unless told otherwise; the adversarial ones (cases for the exact
+# excitation condition, docs/excitation_condition.md) are asked for by name.
+DEFAULT_FAMILIES: tuple[str, ...] = tuple(f.name for f in _REGISTERED if not f.adversarial)
+
+
+def family_indices(families) -> tuple[int, ...]:
+    """Family names or indices as a tuple of indices into `FAMILIES`; ValueError for unknown ones."""
+    if isinstance(families, str):
+        families = (families,)
+    out = []
+    for f in families:
+        if isinstance(f, str) and f in FAMILIES:
+            out.append(FAMILIES.index(f))
+        elif isinstance(f, int | np.integer) and not isinstance(f, bool) and 0 <= f < len(FAMILIES):
+            out.append(int(f))
+        else:
+            raise ValueError(f"unknown input family {f!r}; choose from {FAMILIES}")
+    if not out:
+        raise ValueError(f"no input family given; choose from {FAMILIES}")
+    return tuple(out)

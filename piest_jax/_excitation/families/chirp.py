@@ -1,11 +1,12 @@
 """A linear chirp from the drawn frequency to a fifth to five times it."""
 
+from ..family import AbstractInputFamily, common, log_uniform
 from ..signals import chirp
-from .family import AbstractInputFamily, common, log_uniform
 
 
 class Chirp(AbstractInputFamily):
     name = "chirp"
+    listed = 3
 
     def n_uniforms(self, T):
         return 5

@@ -2,11 +2,12 @@
 
 import jax.numpy as jnp
 
-from .family import AbstractInputFamily, common
+from ..family import AbstractInputFamily, common
 
 
 class Decaying(AbstractInputFamily):
     name = "decaying"
+    listed = 5
 
     def n_uniforms(self, T):
         return 5

@@ -2,11 +2,12 @@
 
 import jax.numpy as jnp
 
-from .family import AbstractInputFamily, common, log_uniform
+from ..family import AbstractInputFamily, common, log_uniform
 
 
 class Multisine(AbstractInputFamily):
     name = "multisine"
+    listed = 1
 
     def n_uniforms(self, T):
         return 13

@@ -2,11 +2,12 @@
 
 import jax.numpy as jnp
 
-from .family import AbstractInputFamily, common, log_uniform
+from ..family import AbstractInputFamily, common, log_uniform
 
 
 class Nested(AbstractInputFamily):
     name = "nested"
+    listed = 9
     adversarial = True
 
     def n_uniforms(self, T):

@@ -2,11 +2,12 @@
 
 import jax.numpy as jnp
 
-from .family import AbstractInputFamily, common
+from ..family import AbstractInputFamily, common
 
 
 class Noise(AbstractInputFamily):
     name = "noise"
+    listed = 2
 
     def n_uniforms(self, T):
         return 5 + T // 2

@@ -1,11 +1,12 @@
 """A slow triangle: monotone stretches longer than a window (adversarial)."""
 
+from ..family import AbstractInputFamily, common
 from ..signals import triangle
-from .family import AbstractInputFamily, common
 
 
 class Ramp(AbstractInputFamily):
     name = "ramp"
+    listed = 7
     adversarial = True
 
     def n_uniforms(self, T):

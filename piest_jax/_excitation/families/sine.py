@@ -2,11 +2,12 @@
 
 import jax.numpy as jnp
 
-from .family import AbstractInputFamily, common
+from ..family import AbstractInputFamily, common
 
 
 class Sine(AbstractInputFamily):
     name = "sine"
+    listed = 0
 
     def n_uniforms(self, T):
         return 4

@@ -2,13 +2,14 @@
 
 import jax.numpy as jnp
 
-from .family import AbstractInputFamily, common
+from ..family import AbstractInputFamily, common
 
 LEVELS = 12
 
 
 class Steps(AbstractInputFamily):
     name = "steps"
+    listed = 6
 
     def n_uniforms(self, T):
         return 3 + 2 * LEVELS

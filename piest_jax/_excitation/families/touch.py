@@ -2,12 +2,13 @@
 
 import jax.numpy as jnp
 
-from .family import AbstractInputFamily
+from ..family import AbstractInputFamily
 from .steps import LEVELS
 
 
 class Touch(AbstractInputFamily):
     name = "touch"
+    listed = 8
     adversarial = True
 
     def n_uniforms(self, T):

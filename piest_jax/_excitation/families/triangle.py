@@ -1,11 +1,12 @@
 """A triangle wave: constant-rate sweeps between two reversals."""
 
+from ..family import AbstractInputFamily, common
 from ..signals import triangle
-from .family import AbstractInputFamily, common
 
 
 class Triangle(AbstractInputFamily):
     name = "triangle"
+    listed = 4
 
     def n_uniforms(self, T):
         return 4

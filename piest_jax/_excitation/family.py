@@ -5,6 +5,7 @@ then the thresholds, initial states and weights, each reading its own slice of o
 vector. Each separate call would be a separate unrolled hash in the compiled program, and
 compiling those dominates a small map. So a family states how many uniforms it reads
 (`n_uniforms`) and maps them to an input (`input`); the draw functions (`draw.py`) do the rest.
+The families themselves are one module each in `families/`.
 
 Amplitudes are drawn relative to the largest threshold r_max, log-uniform over
 [`AMPLITUDE_RANGE`], so a map covers both sides of Assumption 1 (peak-to-peak >= 2 r_max).
@@ -36,17 +37,21 @@ def common(v, r_max):
 
 
 class AbstractInputFamily:
-    """A family of random inputs. Concrete families are final classes registered in `__init__.py`."""
+    """A family of random inputs. Concrete families are final classes, one module each in `families/`."""
 
     name: ClassVar[str]
+    # Its place in the registry's listing (the index a map's settings record): a new family takes
+    # the next free number.
+    listed: ClassVar[int]
     # Asked for by name only: an adversarial case for the exact excitation condition
     # (docs/excitation_condition.md), not part of a map's default mix.
     adversarial: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
-        if not hasattr(cls, "name"):
-            raise TypeError(f"input family {cls.__name__} does not define its name")
+        missing = [a for a in ("name", "listed") if not hasattr(cls, a)]
+        if missing:
+            raise TypeError(f"input family {cls.__name__} does not define {', '.join(missing)}")
 
     def __repr__(self) -> str:
         return f"<input family {self.name}>"

@@ -11,10 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ... import _checks
-from ..._custom_types import Signal, States, Thresholds
+from .. import _checks
+from .._custom_types import Signal, States, Thresholds
+from .families import FAMILIES, FAMILY, family_indices
 from .family import log_uniform
-from .registry import FAMILIES, FAMILY, family_indices
 
 
 def _grid(t):
