@@ -44,6 +44,7 @@ from jaxtyping import Array, Bool, Float
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike, States, Thresholds, Weights
+from .._memory import release_freed_memory
 from .._models.composite import HysteresisModel
 from .._models.creep import Creep, check_time_constants, decays, lag_states, lag_step
 from .._operators.pi import PIOperator
@@ -618,7 +619,12 @@ def fit_pi(
         lag_active=lag_active,
         lag_base=lag_base,
     )
-    if isinstance(solver, str) and solver == "lm" and un.shape[0] > LONG_RECORD:
+    long_record = un.shape[0] > LONG_RECORD
+    if long_record:
+        # What earlier steps freed (a candidate fit, the record's parsing) goes back to the
+        # system first, so that the freed memory of one long fit does not add to the next.
+        release_freed_memory()
+    if isinstance(solver, str) and solver == "lm" and long_record:
         from .normal_equations import solve_starts
 
         params, loss, results, steps = solve_starts(r0s, un, yn, x0, mask, r_bound, **common)
@@ -673,6 +679,8 @@ def fit_pi(
             n_plays,
             n_lags,
         )
+    if long_record:
+        release_freed_memory()
     unexcited_plays = thresholds >= s.u_half
     flagged = unexcited_plays
     if fields:
