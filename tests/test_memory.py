@@ -4,6 +4,7 @@ import ctypes
 
 import pytest
 
+from piest_jax import _memory as memory
 from piest_jax._memory import _malloc_trim, release_freed_memory
 
 
@@ -12,9 +13,10 @@ def _resident_mb() -> float:
         return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmRSS"))
 
 
-def test_release_is_harmless_everywhere():
-    assert isinstance(release_freed_memory(), bool)
-    assert release_freed_memory() in (True, False)  # twice in a row is fine
+def test_without_malloc_trim_nothing_is_done(monkeypatch):
+    # macOS, Windows, musl: no such call; the release says it did nothing instead of failing.
+    monkeypatch.setattr(memory, "_malloc_trim", lambda: None)
+    assert memory.release_freed_memory() is False
 
 
 @pytest.mark.skipif(_malloc_trim() is None, reason="no malloc_trim in this C library")

@@ -1,7 +1,6 @@
 """Registries by discovery: a module holding a concrete subclass is all it takes to register it."""
 
 import importlib
-import sys
 import textwrap
 
 import pytest
@@ -9,19 +8,16 @@ import pytest
 from piest_jax._registry import discover
 
 
-def _package(tmp_path, name, modules):
+def _package(monkeypatch, tmp_path, name, modules):
+    """Write a package of `modules` (name -> source) under tmp_path and import it."""
     root = tmp_path / name
     root.mkdir()
     (root / "__init__.py").write_text("")
     for mod, body in modules.items():
         (root / f"{mod}.py").write_text(textwrap.dedent(body))
-    sys.path.insert(0, str(tmp_path))
+    monkeypatch.syspath_prepend(str(tmp_path))
     importlib.invalidate_caches()
-    try:
-        pkg = importlib.import_module(name)
-    finally:
-        sys.path.remove(str(tmp_path))
-    return pkg
+    return importlib.import_module(name)
 
 
 BASE = """
@@ -32,6 +28,7 @@ class Base:
 
 def test_discovery_finds_each_module_and_orders_by_listed(tmp_path, monkeypatch):
     pkg = _package(
+        monkeypatch,
         tmp_path,
         "reg_ok",
         {
@@ -42,15 +39,14 @@ def test_discovery_finds_each_module_and_orders_by_listed(tmp_path, monkeypatch)
             "mid": "from .base import Base\nfrom .zeta import Zeta\nclass Mid(Base):\n    listed = 1\n",
         },
     )
-    monkeypatch.syspath_prepend(str(tmp_path))
     base = importlib.import_module("reg_ok.base").Base
     found = discover(pkg.__name__, pkg.__path__, base)
     assert [type(x).__name__ for x in found] == ["Zeta", "Mid", "Alpha"]
 
 
 def test_discovery_refuses_a_shared_or_missing_number(tmp_path, monkeypatch):
-    monkeypatch.syspath_prepend(str(tmp_path))
     pkg = _package(
+        monkeypatch,
         tmp_path,
         "reg_dup",
         {
@@ -63,6 +59,7 @@ def test_discovery_refuses_a_shared_or_missing_number(tmp_path, monkeypatch):
     with pytest.raises(TypeError, match="B and A in reg_dup share the `listed` number 3"):
         discover(pkg.__name__, pkg.__path__, base)
     pkg = _package(
+        monkeypatch,
         tmp_path,
         "reg_missing",
         {"base": BASE, "c": "from .base import Base\nclass C(Base):\n    pass\n"},
@@ -74,7 +71,6 @@ def test_discovery_refuses_a_shared_or_missing_number(tmp_path, monkeypatch):
 
 def test_a_new_input_family_is_one_module(tmp_path, monkeypatch):
     # What adding a family takes: one module with a final subclass; the registry finds it.
-    monkeypatch.syspath_prepend(str(tmp_path))
     body = """
         import jax.numpy as jnp
         from piest_jax._excitation.family import AbstractInputFamily, common
@@ -90,7 +86,7 @@ def test_a_new_input_family_is_one_module(tmp_path, monkeypatch):
                 a, f, o, p = common(v, r[-1])
                 return o + a * jnp.sign(jnp.sin(2 * jnp.pi * f * t + p))
         """
-    pkg = _package(tmp_path, "more_families", {"square": body})
+    pkg = _package(monkeypatch, tmp_path, "more_families", {"square": body})
     from piest_jax._excitation.family import AbstractInputFamily
 
     (found,) = discover(pkg.__name__, pkg.__path__, AbstractInputFamily)

@@ -59,7 +59,7 @@ class InitialState(AbstractEffect):
     def jax_initial_states(self, theta, static, g0, x0):
         # The history u0 -> turns -> u0 run through the play operator from relaxed states at u0.
         r = jnp.asarray(THRESHOLDS, g0.dtype)
-        history = jnp.stack([*(jnp.asarray(a, g0.dtype) for a in theta["turns"]), g0])
+        history = jnp.append(jnp.asarray(theta["turns"], g0.dtype), g0)
         return play(history, r, jnp.full(r.shape, g0), method="scan")[-1]
 
     def draw(self, prng, ctx):
