@@ -5,6 +5,7 @@ Fused PI output, float32, n = 32 plays, on two cases: a single long signal (T = 
 
 - `kernel`: `PIOperator(..., method="kernel")` under `jit` (`vmap` for the batch: one kernel call,
   the batch split across the CPU cores);
+- `default`: `PIOperator(...)` as a user writes it, without a method (what runs by default);
 - `jax_scan`: the same operator with the pure-JAX `lax.scan` (`method="scan"`);
 - `numba`: the same loop under `@njit(fastmath=True)` (single signal) and `@njit(parallel=True)`
   with `prange` over the batch;
@@ -14,7 +15,9 @@ Fused PI output, float32, n = 32 plays, on two cases: a single long signal (T = 
 
 Backward: the reverse-mode gradient of <g, y> with respect to the input, thresholds, weights and
 initial states, as `jit(grad)` (forward pass with residuals plus backward pass), for the kernel and
-the scan; `kernel_vjp` times the kernel's backward pass alone (residuals precomputed).
+the scan; `kernel_vjp` times the kernel's backward pass alone (residuals precomputed). Forward
+mode: `jit(jvp)` along one tangent in all four arguments (the output and its tangent), for the
+kernel (`kernel_jvp`) and the scan (`jax_scan_jvp`).
 
 Every row is timed in interleaved rounds (per round and row, an untimed call and then a timed one,
 with `block_until_ready`) and reported as the minimum over rounds, which filters out the time slices
@@ -48,6 +51,8 @@ N_PLAYS = 32
 
 # Targets of the kernel (ratios, higher is better except for the backward ones).
 TARGETS = {
+    "single_forward_default_vs_numba": 1.0,
+    "batch_forward_default_vs_numba_prange": 1.0,
     "single_forward_kernel_vs_numba": 1.0,
     "batch_forward_kernel_vs_numba_prange": 1.0,
     "single_forward_kernel_vs_c_O3": 0.6,
@@ -122,17 +127,28 @@ def _c_loop(tmp, extra_flags):
 
 
 def _jax_rows(method, batched):
+    """jit-compiled forward, gradient and forward-mode tangent of the PI output by `method`.
+
+    `method=None` builds the operator without one, as a user does: the default path.
+    """
+
     def forward(u, r, w, x0):
-        return PIOperator(r, w, x0, method=method)(u)
+        op = PIOperator(r, w, x0) if method is None else PIOperator(r, w, x0, method=method)
+        return op(u)
 
     def loss(u, r, w, x0, g):
         return jnp.vdot(g, forward(u, r, w, x0))
 
-    fwd, grad = forward, jax.grad(loss, argnums=(0, 1, 2, 3))
+    def tangent(u, r, w, x0, du):
+        # One direction in every argument at once.
+        return jax.jvp(forward, (u, r, w, x0), (du, r, w, x0))
+
+    fwd, grad, jvp = forward, jax.grad(loss, argnums=(0, 1, 2, 3)), tangent
     if batched:
         fwd = jax.vmap(fwd, in_axes=(0, None, None, None))
         grad = jax.vmap(grad, in_axes=(0, None, None, None, 0))
-    return jax.jit(fwd), jax.jit(grad)
+        jvp = jax.vmap(jvp, in_axes=(0, None, None, None, 0))
+    return jax.jit(fwd), jax.jit(grad), jax.jit(jvp)
 
 
 def _vjp_only(batched):
@@ -209,18 +225,22 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
             batched = u.ndim == 2
             ju, jr, jw, jx0 = (jnp.asarray(a) for a in (u, r, w, x0))
             g = jnp.asarray(rng.normal(size=u.shape).astype(np.float32))
-            k_fwd, k_grad = _jax_rows("kernel", batched)
-            s_fwd, s_grad = _jax_rows("scan", batched)
+            k_fwd, k_grad, k_jvp = _jax_rows("kernel", batched)
+            s_fwd, s_grad, s_jvp = _jax_rows("scan", batched)
+            d_fwd = _jax_rows(None, batched)[0]
             y = np.empty_like(u)
             rows = {
                 "kernel": lambda f=k_fwd: f(ju, jr, jw, jx0),
                 "kernel_grad": lambda f=k_grad: f(ju, jr, jw, jx0, g),
                 "kernel_vjp": _vjp_only(batched)(ju, jr, jw, jx0, g),
+                "kernel_jvp": lambda f=k_jvp: f(ju, jr, jw, jx0, g),
+                "default": lambda f=d_fwd: f(ju, jr, jw, jx0),
                 nb_name: lambda f=nb_fn: f(u, r, w, x0, y),
                 "c_O3": lambda: c_plain(u, r, w, x0, y),
                 "c_O3_fast_native": lambda: c_fast(u, r, w, x0, y),
                 "jax_scan": lambda f=s_fwd: f(ju, jr, jw, jx0),
                 "jax_scan_grad": lambda f=s_grad: f(ju, jr, jw, jx0, g),
+                "jax_scan_jvp": lambda f=s_jvp: f(ju, jr, jw, jx0, g),
             }
             seconds, cpu_seconds = _time_rows(rows, rounds)
             elems = u.size * N_PLAYS
@@ -232,6 +252,8 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
     s, b = results["single"]["seconds"], results["batch"]["seconds"]
     sc, bc = results["single"]["cpu_seconds"], results["batch"]["cpu_seconds"]
     ratios = {
+        "single_forward_default_vs_numba": s["numba"] / s["default"],
+        "batch_forward_default_vs_numba_prange": b["numba_prange"] / b["default"],
         "single_forward_kernel_vs_numba": s["numba"] / s["kernel"],
         "batch_forward_kernel_vs_numba_prange": b["numba_prange"] / b["kernel"],
         "single_forward_kernel_vs_c_O3": s["c_O3"] / s["kernel"],
@@ -246,6 +268,10 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
         "batch_forward_kernel_vs_jax_scan": b["jax_scan"] / b["kernel"],
         "single_grad_kernel_vs_jax_scan": s["jax_scan_grad"] / s["kernel_grad"],
         "batch_grad_kernel_vs_jax_scan": b["jax_scan_grad"] / b["kernel_grad"],
+        "single_jvp_over_forward": s["kernel_jvp"] / s["kernel"],
+        "batch_jvp_over_forward": b["kernel_jvp"] / b["kernel"],
+        "single_jvp_kernel_vs_jax_scan": s["jax_scan_jvp"] / s["kernel_jvp"],
+        "batch_jvp_kernel_vs_jax_scan": b["jax_scan_jvp"] / b["kernel_jvp"],
     }
     met = {k: (ratios[k] <= v if k.endswith("_max") else ratios[k] >= v) for k, v in TARGETS.items()}
     import numba
@@ -277,24 +303,25 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
 def markdown_table(results) -> str:
     """The forward and backward throughput of every row, as a Markdown table (G elements/s)."""
     lines = [
-        "| row | single forward | single backward | batch forward | batch backward |",
-        "|---|---|---|---|---|",
+        "| row | single forward | single backward | single jvp | batch forward | batch backward | batch jvp |",
+        "|---|---|---|---|---|---|---|",
     ]
     s, b = results["single"]["gelem_per_s"], results["batch"]["gelem_per_s"]
 
     def cell(d, k):
         return f"{d[k]:.2f}" if k in d else "–"
 
-    for label, fwd_s, fwd_b, grad in (
-        ("compiled kernel", "kernel", "kernel", "kernel_grad"),
-        ("JAX lax.scan", "jax_scan", "jax_scan", "jax_scan_grad"),
-        ("Numba njit(fastmath) / prange", "numba", "numba_prange", None),
-        ("C -O3 (ctypes)", "c_O3", "c_O3", None),
-        ("C -O3 -march=native -ffast-math", "c_O3_fast_native", "c_O3_fast_native", None),
+    for label, fwd_s, fwd_b, grad, jvp in (
+        ("default PIOperator", "default", "default", None, None),
+        ("compiled kernel", "kernel", "kernel", "kernel_grad", "kernel_jvp"),
+        ("JAX lax.scan", "jax_scan", "jax_scan", "jax_scan_grad", "jax_scan_jvp"),
+        ("Numba njit(fastmath) / prange", "numba", "numba_prange", None, None),
+        ("C -O3 (ctypes)", "c_O3", "c_O3", None, None),
+        ("C -O3 -march=native -ffast-math", "c_O3_fast_native", "c_O3_fast_native", None, None),
     ):
         lines.append(
-            f"| {label} | {cell(s, fwd_s)} | {cell(s, grad) if grad else '–'} | "
-            f"{cell(b, fwd_b)} | {cell(b, grad) if grad else '–'} |"
+            f"| {label} | {cell(s, fwd_s)} | {cell(s, grad) if grad else '–'} | {cell(s, jvp) if jvp else '–'} | "
+            f"{cell(b, fwd_b)} | {cell(b, grad) if grad else '–'} | {cell(b, jvp) if jvp else '–'} |"
         )
     return "\n".join(lines)
 

@@ -107,7 +107,7 @@ def test_kink_gradient_is_average_of_one_sided_derivatives():
     u = np.array([0.0, 0.5, 1.0, 0.5, 2.0, 1.9])
     codes, margin = ref.branches(u, 1.0, 0.0)
     assert margin == 0.0  # this input does sit on a kink
-    jac = np.asarray(jax.jacrev(lambda v: pj.play(v, 1.0, 0.0))(u))
+    jac = np.asarray(jax.jacrev(lambda v: pj.play(v, 1.0, 0.0, method="scan"))(u))
     right, left = _one_sided(lambda v: ref.play(v, 1.0, 0.0)[:, 0], u, 2)
     np.testing.assert_allclose(right[2:4], [1.0, 1.0], atol=1e-9)  # pushing up drags the play
     np.testing.assert_allclose(left[2:4], [0.0, 0.0], atol=1e-9)  # pulling down leaves it held
@@ -116,11 +116,21 @@ def test_kink_gradient_is_average_of_one_sided_derivatives():
     r5, l5 = _one_sided(lambda v: ref.play(v, 1.0, 0.0)[:, 0], u, 4)
     np.testing.assert_allclose(r5, l5, atol=1e-9)
     np.testing.assert_allclose(jac[:, 4], r5, rtol=0, atol=1e-9)
+    if pj.kernel_available():
+        # The default on a CPU is the compiled kernel, which counts the tie as a hold: the
+        # one-sided derivative in which the play does not move, in both modes.
+        for jacobian in (jax.jacrev, jax.jacfwd):
+            kern = np.asarray(jacobian(lambda v: pj.play(v, 1.0, 0.0))(u))
+            np.testing.assert_allclose(kern[:, 2], left, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(kern[:, 4], r5, rtol=0, atol=1e-9)
 
 
 def test_initial_state_on_a_bound_gets_the_average():
     # x0 = u_0 + r: raising x0 is clipped (derivative 0), lowering it is held (derivative 1).
-    g = jax.grad(lambda x0: pj.play(jnp.array([0.0]), 1.0, x0)[0])(1.0)
+    g = jax.grad(lambda x0: pj.play(jnp.array([0.0]), 1.0, x0, method="scan")[0])(1.0)
     right, left = _one_sided(lambda v: ref.play([0.0], 1.0, v[0])[0, 0], np.array([1.0]), 0)
     assert (right, left) == pytest.approx((0.0, 1.0), abs=1e-9)
     assert float(g) == pytest.approx(0.5 * (right + left), abs=1e-9)
+    if pj.kernel_available():  # the default on a CPU: the hold branch, in both modes
+        for mode in (jax.grad, jax.jacfwd):
+            assert float(mode(lambda x0: pj.play(jnp.array([0.0]), 1.0, x0)[0])(1.0)) == pytest.approx(left, abs=1e-9)

@@ -3,7 +3,8 @@
 Outputs: the play bank H agrees with the scan to the last bit, the fused PI output to the rounding of
 a different summation order. Gradients (input, thresholds, weights, initial states) agree to a
 tolerance scaled by the dtype's epsilon, away from switching instants where the one-sided derivatives
-differ. Also: jit/vmap/grad composition, the whole-batch kernel call, the threaded batch path, the
+differ; forward mode (jvp, jacfwd, linearize) agrees with the scan, with finite differences and
+with reverse mode. Also: jit/vmap/grad composition, the whole-batch kernel call, the threaded batch path, the
 fallback when the extension is missing, and the error messages.
 """
 
@@ -275,6 +276,99 @@ def test_threshold_gradient_at_zero_is_the_right_derivative(rng):
         np.testing.assert_allclose(got[k], scan[k], rtol=1e-12, atol=1e-11)
 
 
+# Forward mode ---------------------------------------------------------------------------------
+
+
+def _pi_tangent(u, r, x0, w, du, dr, dx0, dw, method):
+    return jax.jvp(lambda *a: pj.PIOperator(a[1], a[3], a[2], method=method)(a[0]), (u, r, x0, w), (du, dr, dx0, dw))
+
+
+def _bank_tangent(u, r, x0, du, dr, dx0, method):
+    return jax.jvp(lambda *a: pj.play(*a, method=method), (u, r, x0), (du, dr, dx0))
+
+
+_pi_jvp = jax.jit(_pi_tangent, static_argnames="method")
+_bank_jvp = jax.jit(_bank_tangent, static_argnames="method")
+
+
+@needs_kernel
+@given(_grad_cases())
+def test_forward_mode_agrees_with_the_scan(case):
+    # A tangent in every argument at once: jvp is linear, so this checks each argument's
+    # derivative and their sum. The bank's tangents are copies (no sums), equal to the last bit.
+    u, r, x0, w, g = case
+    if _has_ties(u, r, x0):
+        return
+    rng = np.random.default_rng(int(abs(u[0]) * 1e6) % 2**32)
+    du, dr, dx0, dw = (rng.normal(size=a.shape).astype(u.dtype) for a in (u, r, x0, w))
+    y, dy = _pi_jvp(u, r, x0, w, du, dr, dx0, dw, method="kernel")
+    y_s, dy_s = _pi_jvp(u, r, x0, w, du, dr, dx0, dw, method="scan")
+    np.testing.assert_array_equal(y, _pi(u, r, x0, w, "kernel"))
+    _assert_grads_close([dy], [dy_s], u.dtype, GRAD_N)
+    h, dh = _bank_jvp(u, r, x0, du, dr, dx0, method="kernel")
+    np.testing.assert_array_equal(h, _bank(u, r, x0, "scan"))
+    np.testing.assert_array_equal(dh, _bank_jvp(u, r, x0, du, dr, dx0, method="scan")[1])
+
+
+@needs_kernel
+def test_forward_mode_matches_finite_differences_and_reverse_mode(rng):
+    # jacfwd against central differences of the float64 NumPy reference (the output is piecewise
+    # linear, so a small step is exact up to rounding), and against jacrev: the transpose of the
+    # tangent is the backward kernel.
+    u, r, x0, w = _case(rng, 30, 6, np.float64)
+    assert not _has_ties(u, r, x0)
+    args = [u, r, x0, w]
+    f = lambda *a: pj.PIOperator(a[1], a[3], a[2], method="kernel")(a[0])  # noqa: E731
+    h = 1e-6
+    for k in range(4):
+        jac = np.asarray(jax.jacfwd(f, argnums=k)(*args))
+        fd = np.empty_like(jac)
+        for i in range(args[k].size):
+            plus, minus = [a.copy() for a in args], [a.copy() for a in args]
+            plus[k][i] += h
+            minus[k][i] -= h
+            pi_plus, pi_minus = (ref.pi(a[0], a[1], a[3], a[2]) for a in (plus, minus))
+            fd[:, i] = (pi_plus - pi_minus) / (2 * h)
+        np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-6, err_msg=f"argument {k}")
+        np.testing.assert_allclose(jac, jax.jacrev(f, argnums=k)(*args), rtol=1e-12, atol=1e-12)
+
+
+@needs_kernel
+def test_forward_mode_at_a_kink_and_a_zero_threshold_follows_the_kernel(rng):
+    # The tangent uses the forward pass's branch codes, so at a tie it takes the hold branch and at
+    # r = 0 the admissible side r > 0, as the backward kernel does: jacfwd equals jacrev there.
+    u, r, x0 = jnp.array([1.0, 0.0]), jnp.array([1.0]), jnp.array([1.0])
+    for k in range(3):
+        np.testing.assert_array_equal(jax.jacfwd(K.bank, k)(u, r, x0), jax.jacrev(K.bank, k)(u, r, x0))
+    u2, r2, x2, _ = _case(rng, 30, 4, np.float64)
+    r2[0] = 0.0
+    for k in range(3):
+        np.testing.assert_array_equal(jax.jacfwd(K.bank, k)(u2, r2, x2), jax.jacrev(K.bank, k)(u2, r2, x2))
+
+
+@needs_kernel
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_forward_mode_composes_with_vmap_jit_and_linearize(rng, dtype):
+    b = 3
+    u = np.stack([_case(rng, 25, 7, dtype)[0] for _ in range(b)])
+    _, r, x0, w = _case(rng, 25, 7, dtype)
+    r = r + dtype(0.01)  # no zero threshold: the methods' conventions differ there
+
+    def jac_r(method):
+        f = lambda v, rr: pj.PIOperator(rr, w, x0, method=method)(v)  # noqa: E731
+        return jax.jit(jax.vmap(jax.jacfwd(f, argnums=1), in_axes=(0, None)))(u, r)
+
+    _assert_grads_close([jac_r("kernel")], [jac_r("scan")], dtype, 7)
+    # jacfwd of a batched function (the tangents batched over the basis, the primal over signals).
+    batched = lambda rr, m: jax.vmap(lambda v: pj.play(v, rr, x0, method=m))(u)  # noqa: E731
+    np.testing.assert_array_equal(jax.jacfwd(batched)(r, "kernel"), jax.jacfwd(batched)(r, "scan"))
+    # linearize, then the linear map applied to two tangents.
+    y, lin = jax.linearize(lambda rr: pj.play(u[0], rr, x0, method="kernel"), r)
+    np.testing.assert_array_equal(y, pj.play(u[0], r, x0, method="scan"))
+    for t in (np.ones_like(r), np.arange(7, dtype=dtype)):
+        np.testing.assert_array_equal(lin(t), jax.jvp(lambda rr: pj.play(u[0], rr, x0, method="scan"), (r,), (t,))[1])
+
+
 # Composition with jit / vmap / grad ----------------------------------------------------------
 
 
@@ -419,6 +513,30 @@ def test_unimportable_extension_in_a_fresh_process():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok"
+
+
+@needs_kernel
+def test_the_default_method_is_the_kernel_for_float32_and_float64_only(rng):
+    # What a user gets without asking: the kernel (one FFI call, no loop) for float32/float64 with
+    # constant thresholds; the scan, silently, for another dtype or thresholds that vary in time.
+    import warnings
+
+    u, r, x0, w = _case(rng, 12, 3, np.float64)
+    for dtype, target in ((np.float64, "piest_pi_fwd_f64"), (np.float32, "piest_pi_fwd_f32")):
+        op = pj.PIOperator(r.astype(dtype), w.astype(dtype), x0.astype(dtype))
+        text = str(jax.make_jaxpr(op)(u.astype(dtype)))
+        assert target in text and "scan[" not in text
+        text = str(jax.make_jaxpr(lambda v: pj.play(v, r.astype(dtype), x0.astype(dtype)))(u.astype(dtype)))
+        assert "piest_bank_fwd" in text and "scan[" not in text
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        half = pj.play(u.astype(np.float16), r.astype(np.float16), x0.astype(np.float16))
+        varying = pj.play(u, np.tile(r, (12, 1)), x0)
+    assert half.dtype == np.float16
+    np.testing.assert_array_equal(half, pj.play(*(a.astype(np.float16) for a in (u, r, x0)), method="scan"))
+    np.testing.assert_array_equal(varying, pj.play(u, np.tile(r, (12, 1)), x0, method="scan"))
+    with pytest.raises(ValueError, match="supports float32 and float64, got float16"):
+        pj.play(*(a.astype(np.float16) for a in (u, r, x0)), method="kernel")
 
 
 def test_kernel_refuses_a_non_cpu_backend(monkeypatch):

@@ -47,8 +47,8 @@ class PIOperator(AbstractHysteresisOperator):
     - `weights`: (n,); a scalar for one play (`PIOperator(0.0, 1.0)`).
     - `initial_states`: the plays' states before the first sample, a scalar or (n,); they need not
       be zero (paper eq. 2).
-    - `method`: how the plays are run, `"scan"`, `"associative"`, `"kernel"` or `"auto"` (see
-      [`play`][piest_jax.play]).
+    - `method`: how the plays are run, `"auto"` (the default: the compiled kernel on a CPU),
+      `"scan"`, `"associative"` or `"kernel"` (see [`play`][piest_jax.play]).
 
     Bad shapes raise `ValueError` when the operator is built; negative or unsorted thresholds raise
     `ValueError` for concrete values and an `eqx.error_if` runtime error under `jit`.
@@ -57,9 +57,9 @@ class PIOperator(AbstractHysteresisOperator):
     thresholds: Thresholds
     weights: Weights
     initial_states: States
-    method: Method = eqx.field(static=True, default="scan")
+    method: Method = eqx.field(static=True, default="auto")
 
-    def __init__(self, thresholds, weights, initial_states=0.0, *, method: Method = "scan"):
+    def __init__(self, thresholds, weights, initial_states=0.0, *, method: Method = "auto"):
         r = _checks.thresholds(thresholds, "thresholds", sorted_=True)
         if r.ndim == 0:
             r = r[None]
@@ -85,9 +85,10 @@ class PIOperator(AbstractHysteresisOperator):
 
     def _input(self, u) -> Array:
         u = _checks.signal(u)
-        if not _uses_kernel(self.method):
+        dtype = jnp.result_type(u, self.thresholds)
+        if not _uses_kernel(self.method, dtype=dtype):
             u = _checks.finite(u, "u")
-        return u.astype(jnp.result_type(u, self.thresholds))
+        return u.astype(dtype)
 
     def regressor(self, u: SignalLike) -> Regressor:
         """The play outputs H (T, n), the regressor of the weight-estimation problem (eq. 4).
@@ -107,7 +108,7 @@ class PIOperator(AbstractHysteresisOperator):
         **Returns:** y (T,).
         """
         u = self._input(u)
-        method = resolved(self.method)
+        method = resolved(self.method, dtype=u.dtype)
         if method == "associative":
             return _bank(u, self.thresholds, self.initial_states, method) @ self.weights
         if method == "kernel":

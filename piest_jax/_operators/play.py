@@ -93,7 +93,7 @@ def _associative(u: Array, r: Array, x0: Array) -> Array:
     return jnp.maximum(lo_c, jnp.minimum(hi_c, x0))
 
 
-def resolved(method: str, *, time_varying: bool = False) -> str:
+def resolved(method: str, *, time_varying: bool = False, dtype=None) -> str:
     """The play method that runs here for `method`: `"scan"`, `"associative"` or `"kernel"`.
 
     `"auto"` is the compiled kernel on a CPU backend where it is built, the associative scan on
@@ -103,10 +103,10 @@ def resolved(method: str, *, time_varying: bool = False) -> str:
     extension falls back to the scan (warning once); on an accelerator it is refused. The kernel
     takes constant thresholds only: for time-varying ones `"kernel"` and `"auto"` are the scan on
     a CPU backend, without a warning (there, on one signal, the scan ran several times faster than
-    the associative form).
+    the associative form). `"auto"` on a dtype other than float32 and float64 is the scan too.
 
     **Arguments:** `method`, one of `METHODS`; `time_varying`, whether the thresholds vary over
-    time (shape (T, n)).
+    time (shape (T, n)); `dtype`, the dtype the plays run in (None: not known here).
 
     **Returns:** the method name that runs.
     """
@@ -116,6 +116,8 @@ def resolved(method: str, *, time_varying: bool = False) -> str:
         return "associative"
     if method in ("kernel", "auto"):
         if time_varying and not on_accelerator():
+            return "scan"
+        if method == "auto" and dtype is not None and jnp.dtype(dtype) not in (jnp.float32, jnp.float64):
             return "scan"
         from . import kernel as _kernel
 
@@ -128,14 +130,14 @@ def on_accelerator() -> bool:
     return jax.default_backend() != "cpu"
 
 
-def _uses_kernel(method: str, time_varying: bool = False) -> bool:
+def _uses_kernel(method: str, time_varying: bool = False, dtype=None) -> bool:
     """Whether `method` runs the compiled kernel here (it checks its input for NaN/inf itself)."""
-    return method in ("kernel", "auto") and resolved(method, time_varying=time_varying) == "kernel"
+    return method in ("kernel", "auto") and resolved(method, time_varying=time_varying, dtype=dtype) == "kernel"
 
 
 def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
     """Play outputs (T, n) for thresholds r (n,) or time-varying (T, n) and initial states x0 (n,)."""
-    method = resolved(method, time_varying=r.ndim == 2)
+    method = resolved(method, time_varying=r.ndim == 2, dtype=u.dtype)
     if method == "kernel":
         from . import kernel as _kernel
 
@@ -160,15 +162,15 @@ def _thresholds(r: Array, n_samples: int) -> Array:
     return _checks.thresholds(r.reshape(-1), "r").reshape(r.shape)
 
 
-def _prepare(u, r, x0, x0_name="x0", method="scan") -> tuple[Array, Array, Array, Array]:
+def _prepare(u, r, x0, x0_name="x0", method="auto") -> tuple[Array, Array, Array, Array]:
     u = _checks.signal(u)
     r = _checks.as_float_array(r, "r")
-    if not _uses_kernel(method, time_varying=r.ndim == 2):
-        u = _checks.finite(u, "u")
     r = _thresholds(r, u.shape[0])
     n = None if r.ndim == 0 else r.shape[-1]
     x0 = _checks.per_play(x0, n, x0_name)
     dtype = jnp.result_type(u, r, x0)
+    if not _uses_kernel(method, time_varying=r.ndim == 2, dtype=dtype):
+        u = _checks.finite(u, "u")
     u, r, x0 = u.astype(dtype), r.astype(dtype), x0.astype(dtype)
     rv = jnp.atleast_1d(r)
     x0v = jnp.broadcast_to(x0, rv.shape[-1:])
@@ -180,7 +182,7 @@ def play(
     r: ThresholdsLike | TimeVaryingThresholdsLike,
     x0: ScalarLike | ThresholdsLike = 0.0,
     *,
-    method: Method = "scan",
+    method: Method = "auto",
 ) -> Array:
     """The play operator H_r[u] (paper eq. 1) on a sampled input.
 
@@ -194,12 +196,15 @@ def play(
     - `r`: one threshold (scalar), a bank of thresholds (n,), or thresholds that vary over time
       (T, n), one row per sample of `u`; all >= 0.
     - `x0`: the initial state(s), a scalar or (n,).
-    - `method`: `"scan"` (sequential `lax.scan`, the reference), `"associative"`
-      (`lax.associative_scan`, O(log T) depth, same outputs to the last bit), `"kernel"` (the
-      compiled CPU kernel, same outputs to the last bit; falls back to the scan with a warning when
-      it was not built) or `"auto"` (the kernel on a CPU backend when built, the associative scan
-      on an accelerator, where it runs faster). The kernel takes constant thresholds only: with
-      time-varying ones, `"kernel"` and `"auto"` run the scan on a CPU backend (no warning).
+    - `method`: `"auto"` (the default: the compiled kernel on a CPU backend when it was built,
+      the associative scan on an accelerator, where it runs faster), `"scan"` (sequential
+      `lax.scan`, the reference), `"associative"` (`lax.associative_scan`, O(log T) depth, same
+      outputs to the last bit) or `"kernel"` (the compiled CPU kernel, same outputs to the last
+      bit; falls back to the scan with a warning when it was not built). All differentiate in
+      forward and reverse mode; at a tie (a state exactly on a bound, or a zero threshold) the
+      kernel takes a one-sided derivative where the scans average both sides. The kernel takes
+      float32/float64 and constant thresholds only: otherwise `"auto"` (and, for time-varying
+      thresholds, `"kernel"`) runs the scan on a CPU backend (no warning).
 
     **Returns:** the play output, (T,) for a scalar `r` and (T, n) for a vector or time-varying
     `r`.
@@ -214,7 +219,7 @@ def stop(
     r: ThresholdsLike | TimeVaryingThresholdsLike,
     e0: ScalarLike | ThresholdsLike = 0.0,
     *,
-    method: Method = "scan",
+    method: Method = "auto",
 ) -> Array:
     """The stop operator E_r[u] = u - H_r[u], the play's dual.
 

@@ -3,10 +3,9 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
-from scipy import signal as _signal
 
 from ..._identification.fit import _softplus_inv
+from ..._models.creep import lag_states
 from .. import synthetic
 from ..effect import AbstractEffect
 
@@ -14,19 +13,14 @@ N_CREEP = 5  # creep modes, log-spaced from a third of the input's period to the
 
 
 def lowpass(v, lam):
-    """First-order low-pass y_t = lam y_{t-1} + (1 - lam) v_t, starting at v_0; `lam` (k,) -> (T, k)."""
-    v = np.asarray(v, float)
-    return np.column_stack([_signal.lfilter([1 - a], [1.0, -a], v, zi=[a * v[0]])[0] for a in np.asarray(lam, float)])
+    """First-order low-pass y_t = lam y_t-1 + (1 - lam) v_t from rest at v_0, `lam` (k,) -> (T, k).
 
-
-def lowpass_jax(v, lam):
-    """The low-pass of `lowpass`, traceable in `lam` (k,): (T, k)."""
-
-    def step(y, vt):
-        y = lam * y + (1 - lam) * vt
-        return y, y
-
-    return lax.scan(step, jnp.full(lam.shape, v[0]), v)[1]
+    The creep operator's lag recurrence ([`piest_jax.Creep`][]), so the diagnosis and the fitted
+    model share one definition; traceable in `v` and `lam`.
+    """
+    v = jnp.asarray(v)
+    lam = jnp.asarray(lam, v.dtype)
+    return lag_states(v, lam, jnp.full(lam.shape, v[0]), method="scan")
 
 
 class Creep(AbstractEffect):
@@ -56,7 +50,7 @@ class Creep(AbstractEffect):
         return len(q)
 
     def columns(self, q, p, v, drive, norm):
-        lp = lowpass(drive, np.exp(-p.dt / np.asarray(q)))
+        lp = np.asarray(lowpass(drive, np.exp(-p.dt / np.asarray(q))))
         return lp - drive[:, None]
 
     def transients(self, q, p):
@@ -79,7 +73,7 @@ class Creep(AbstractEffect):
     def jax_output(self, theta, static, v, data):
         lam = jnp.exp(-data["dt"] / jnp.exp(theta["log_creep_tau"]))
         c = jax.nn.softplus(theta["creep"])
-        return v + (lowpass_jax(v, lam) - v[:, None]) @ c
+        return v + (lowpass(v, lam) - v[:, None]) @ c
 
     def draw(self, prng, ctx):
         c = prng.uniform(0.08, 0.2)

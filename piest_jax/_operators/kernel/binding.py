@@ -5,14 +5,18 @@ y (T,), float32 and float64, forward and backward. They are registered with `jax
 they are needed. The forward outputs equal the pure-JAX scan: H to the last bit (the same max/min
 operations), y up to the order in which the n weighted plays are summed.
 
-Gradients go through `jax.custom_vjp`. The differentiated forward pass also records, per step and
+Derivatives go through `jax.custom_jvp`. The differentiated forward pass also records, per step and
 play, one bit: whether a bound moved the state (which bound follows from the direction of the
-input), and the backward kernel runs the adjoint recurrence backwards in time over those bits. At a
+input). The tangent along (du, dr, dx0) follows from those bits without a sequential loop
+(`tangent.py`), and its transpose, which reverse mode uses, is the backward kernel: it runs the
+adjoint recurrence backwards in time over the same bits. So `jvp`, `jacfwd`, `linearize`, `grad`
+and `jacrev` all work, to first order (a second derivative of a piecewise-linear operator is zero
+wherever it exists; for nested differentiation use the scan). At a
 kink (the old state exactly equal to a bound) the kernel counts the step as a hold, so the
 derivative is the one-sided derivative in which the play does not move; the pure-JAX scan instead
 averages the two sides. Likewise for a zero threshold, where both bounds equal u: the kernel gives
 the threshold derivative from the admissible side r > 0, the scan the average of both sides (zero).
-Both agree everywhere else.
+Both agree everywhere else, in both modes.
 
 Batching (`jax.vmap`) hands the whole batch to one kernel call (`vmap_method="broadcast_all"`), which
 splits the signals across the CPU cores (`PIEST_KERNEL_THREADS` caps the thread count).
@@ -37,6 +41,7 @@ from jax import lax
 from jaxtyping import Array
 
 from ... import _checks
+from . import tangent
 
 
 def _missing_isa(required) -> list[str]:
@@ -206,8 +211,8 @@ def bank(u: Array, r: Array, x0: Array) -> Array:
 
     All three must share one float dtype (float32 or float64); anything else raises `ValueError`,
     and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`,
-    `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
-    respect to all three arguments.
+    `vmap` (one kernel call for the whole batch), forward mode (`jvp`, `jacfwd`) and
+    reverse mode (`grad`) with respect to all three arguments.
 
     **Arguments:**
 
@@ -222,25 +227,28 @@ def bank(u: Array, r: Array, x0: Array) -> Array:
     return _bank(u, _check_finite(u, r), x0)
 
 
-@jax.custom_vjp
-def _bank(u, r, x0):
-    return _call("bank_fwd", u, _sds((u.shape[0], r.shape[0]), u.dtype), u, r, x0)
-
-
-def _bank_fwd(u, r, x0):
-    t, n = u.shape[0], r.shape[0]
-    shapes = (_sds((t, n), u.dtype), _sds((t, _code_bytes(n, u.dtype)), jnp.uint8))
-    h, codes = _call("bank_fwd_res", u, shapes, u, r, x0)
-    return h, (u, r, x0, codes)
-
-
-def _bank_bwd(res, gh):
-    u, r, x0, codes = res
+def _bank_bwd(u, r, x0, codes, gh):
     shapes = (_sds(u.shape, u.dtype), _sds(r.shape, u.dtype), _sds(x0.shape, u.dtype))
     return tuple(_call("bank_bwd", u, shapes, u, r, x0, codes, gh.astype(u.dtype)))
 
 
-_bank.defvjp(_bank_fwd, _bank_bwd)
+_bank_tangent = tangent.linear_primitive(
+    "piest_bank_tangent", 4, tangent.bank_tangent, lambda u, r, *_: u + r, _bank_bwd
+)
+
+
+@jax.custom_jvp
+def _bank(u, r, x0):
+    return _call("bank_fwd", u, _sds((u.shape[0], r.shape[0]), u.dtype), u, r, x0)
+
+
+@_bank.defjvp
+def _bank_jvp(primals, tangents):
+    u, r, x0 = primals
+    t, n = u.shape[0], r.shape[0]
+    shapes = (_sds((t, n), u.dtype), _sds((t, _code_bytes(n, u.dtype)), jnp.uint8))
+    h, codes = _call("bank_fwd_res", u, shapes, u, r, x0)
+    return h, _bank_tangent.bind(u, r, x0, codes, *tangents)
 
 
 def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
@@ -248,8 +256,8 @@ def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
 
     All four must share one float dtype (float32 or float64); anything else raises `ValueError`,
     and so does NaN or inf in `u` (through `eqx.error_if` under `jit`). Composes with `jit`,
-    `vmap` (one kernel call for the whole batch) and reverse-mode `grad` with
-    respect to all four arguments.
+    `vmap` (one kernel call for the whole batch), forward mode (`jvp`, `jacfwd`) and
+    reverse mode (`grad`) with respect to all four arguments.
 
     **Arguments:**
 
@@ -266,22 +274,28 @@ def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
     return _pi(u, _check_finite(u, r), x0, w)
 
 
-@jax.custom_vjp
-def _pi(u, r, x0, w):
-    return _call("pi_fwd", u, _sds(u.shape, u.dtype), u, r, x0, w)
+def _pi_tangent_rule(u, r, x0, w, codes, du, dr, dx0, dw):
+    # The fused output's tangent, sum_j w_j dH_j + dw_j H_j; H is recomputed (no codes needed).
+    dh = tangent.bank_tangent(u, r, x0, codes, du, dr, dx0)
+    return dh @ w + _bank(u, r, x0) @ dw
 
 
-def _pi_fwd(u, r, x0, w):
-    codes = _sds((u.shape[0], _code_bytes(r.shape[0], u.dtype)), jnp.uint8)
-    shapes = (_sds(u.shape, u.dtype), codes)
-    y, codes = _call("pi_fwd_res", u, shapes, u, r, x0, w)
-    return y, (u, r, x0, w, codes)
-
-
-def _pi_bwd(res, gy):
-    u, r, x0, w, codes = res
+def _pi_bwd(u, r, x0, w, codes, gy):
     shapes = (_sds(u.shape, u.dtype),) + tuple(_sds(a.shape, u.dtype) for a in (r, x0, w))
     return tuple(_call("pi_bwd", u, shapes, u, r, x0, w, codes, gy.astype(u.dtype)))
 
 
-_pi.defvjp(_pi_fwd, _pi_bwd)
+_pi_tangent = tangent.linear_primitive("piest_pi_tangent", 5, _pi_tangent_rule, lambda u, *_: u, _pi_bwd)
+
+
+@jax.custom_jvp
+def _pi(u, r, x0, w):
+    return _call("pi_fwd", u, _sds(u.shape, u.dtype), u, r, x0, w)
+
+
+@_pi.defjvp
+def _pi_jvp(primals, tangents):
+    u, r, x0, w = primals
+    codes = _sds((u.shape[0], _code_bytes(r.shape[0], u.dtype)), jnp.uint8)
+    y, codes = _call("pi_fwd_res", u, (_sds(u.shape, u.dtype), codes), u, r, x0, w)
+    return y, _pi_tangent.bind(u, r, x0, w, codes, *tangents)
