@@ -4,6 +4,9 @@ One draw is one PRNG key: it fixes an input family and its parameters, a thresho
 play states and true weights (see `families/`); `draw_statistics` (`_draw_metrics.py`) turns
 it into the map's quantities. The batch runs as one jitted computation per chunk of keys, with
 the key axis sharded over every JAX device through a one-axis `Mesh` and `NamedSharding`.
+After `jax.distributed.initialize` the devices are those of every process (host): each process
+then runs the same loop over chunks, hands the keys of its own devices to the computation, and
+gets every draw's statistics back.
 """
 
 import functools
@@ -13,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .. import _checks
@@ -92,6 +96,15 @@ def mesh_sharding(devices) -> NamedSharding:
     return NamedSharding(Mesh(np.asarray(tuple(devices)), ("batch",)), PartitionSpec("batch"))
 
 
+def _global_keys(keys, sharding: NamedSharding):
+    """`keys`, the same on every process, as one array over devices of several processes.
+
+    `device_put` places data on this process's devices only: here each process gives the slices
+    that its own devices hold (typed keys as they are; JAX 0.6 and later take them).
+    """
+    return jax.make_array_from_callback(keys.shape, sharding, lambda index: keys[index])
+
+
 @functools.lru_cache(maxsize=16)
 def _engine(settings: MapSettings, devices: tuple, inputs: bool = False):
     sharding = mesh_sharding(devices)
@@ -133,7 +146,10 @@ def pe_map(
       times the number of families.
     - `start`: the number of the first draw, a multiple of the number of families: a long map
       can be split over runs or hosts (draws start, ..., start + n_draws − 1).
-    - `devices`: the devices to shard over (default all of `jax.devices()`).
+    - `devices`: the devices to shard over (default all of `jax.devices()`). After
+      `jax.distributed.initialize` these are every process's devices: every process must then
+      call `pe_map` with the same arguments and hold at least one of `devices`, and each gets
+      the whole map back, the one a single process with as many devices computes.
     - `settle`: decide in exact arithmetic, on the host after each chunk, every draw whose
       verdict floating point cannot decide ([`needs_settling`][piest_jax.needs_settling]: its
       event level below [`settle_band`][piest_jax.settle_band], or its two float verdicts
@@ -157,6 +173,14 @@ def pe_map(
     if isinstance(start, bool) or not isinstance(start, int | np.integer) or start % nf or start < 0:
         raise ValueError(f"`start` must be a non-negative multiple of {nf} (the families), got {start!r}")
     devices = tuple(jax.devices() if devices is None else devices)
+    # Devices of other processes take no device_put and give no device_get: see _global_keys.
+    here = jax.process_index()
+    spans_processes = any(d.process_index != here for d in devices)
+    if spans_processes and not any(d.process_index == here for d in devices):
+        raise ValueError(
+            f"`devices` holds none of this process's devices (process {here}): every process of a "
+            "distributed run must take part in the map with at least one of its devices"
+        )
     unit = len(devices) * nf
     chunk = -(-min(chunk, n_draws) // unit) * unit
     fn, sharding = _engine(settings, devices, settle)
@@ -165,8 +189,13 @@ def pe_map(
     offsets = range(0, n_draws, chunk)
     for offset in progress(offsets, total=len(offsets), desc="PE map", quiet=quiet):
         # The last chunk is padded to the full size so every call reuses one compiled program.
-        keys = jax.device_put(draw_keys(key, start + offset, chunk), sharding)
-        out = {k: v[: n_draws - offset] for k, v in jax.device_get(fn(keys)).items()}
+        if spans_processes:
+            keys = _global_keys(draw_keys(key, start + offset, chunk), sharding)
+            out = multihost_utils.process_allgather(fn(keys), tiled=True)
+        else:
+            keys = jax.device_put(draw_keys(key, start + offset, chunk), sharding)
+            out = jax.device_get(fn(keys))
+        out = {k: v[: n_draws - offset] for k, v in out.items()}
         if settle:
             t0 = time.perf_counter()
             out = settle_draws(out, settings)
