@@ -424,9 +424,11 @@ def test_vmap_hands_the_whole_batch_to_one_kernel_call(rng):
     r, x0, w = np.array([0.0, 0.5]), np.zeros(2), np.ones(2)
     forward = lambda v: pj.PIOperator(r, w, x0, method="kernel")(v)  # noqa: E731
     backward = jax.grad(lambda v: jnp.sum(forward(v)))
+    tangent = lambda v: jax.jvp(forward, (v,), (jnp.ones_like(v),))[1]  # noqa: E731
     for fn, expected in (
         (forward, ["piest_pi_fwd_f64"]),
         (backward, ["piest_pi_fwd_res_f64", "piest_pi_bwd_f64"]),
+        (tangent, ["piest_pi_fwd_res_f64"]),
     ):
         text = str(jax.make_jaxpr(jax.vmap(fn))(u))
         calls = [
@@ -436,6 +438,10 @@ def test_vmap_hands_the_whole_batch_to_one_kernel_call(rng):
         assert [name for _, name in calls] == expected
         assert all(aval == "float64[5,16]" for aval, _ in calls)  # one call for the whole batch
         assert "while[" not in text and "scan[" not in text
+    # Forward mode's tangent is a primitive of its own (so that reverse mode can transpose it);
+    # it lowers to one tangent-kernel call for the whole batch, and no loop.
+    hlo = jax.jit(jax.vmap(tangent)).lower(u).as_text()
+    assert hlo.count("piest_pi_tangent_f64") == 1 and "stablehlo.while" not in hlo
 
 
 @needs_kernel

@@ -7,9 +7,10 @@ operations), y up to the order in which the n weighted plays are summed.
 
 Derivatives go through `jax.custom_jvp`. The differentiated forward pass also records, per step and
 play, one bit: whether a bound moved the state (which bound follows from the direction of the
-input). The tangent along (du, dr, dx0) follows from those bits without a sequential loop
-(`tangent.py`), and its transpose, which reverse mode uses, is the backward kernel: it runs the
-adjoint recurrence backwards in time over the same bits. So `jvp`, `jacfwd`, `linearize`, `grad`
+input). A third kernel runs the tangent along (du, dr, dx0) forwards in time over those bits (a
+moved state takes the input's tangent, a held one keeps its own), and the tangent's transpose,
+which reverse mode uses, is the backward kernel: it runs the adjoint recurrence backwards in time
+over the same bits (`tangent.py` makes the pair one linear JAX primitive). So `jvp`, `jacfwd`, `linearize`, `grad`
 and `jacrev` all work, to first order (a second derivative of a piecewise-linear operator is zero
 wherever it exists; for nested differentiation use the scan). At a
 kink (the old state exactly equal to a bound) the kernel counts the step as a hold, so the
@@ -232,9 +233,11 @@ def _bank_bwd(u, r, x0, codes, gh):
     return tuple(_call("bank_bwd", u, shapes, u, r, x0, codes, gh.astype(u.dtype)))
 
 
-_bank_tangent = tangent.linear_primitive(
-    "piest_bank_tangent", 4, tangent.bank_tangent, lambda u, r, *_: u + r, _bank_bwd
-)
+def _bank_tangent_rule(u, r, x0, codes, du, dr, dx0):
+    return _call("bank_tangent", u, _sds((u.shape[0], r.shape[0]), u.dtype), u, r, x0, codes, du, dr, dx0)
+
+
+_bank_tangent = tangent.linear_primitive("piest_bank_tangent", 4, _bank_tangent_rule, lambda u, r, *_: u + r, _bank_bwd)
 
 
 @jax.custom_jvp
@@ -275,9 +278,7 @@ def pi_output(u: Array, r: Array, x0: Array, w: Array) -> Array:
 
 
 def _pi_tangent_rule(u, r, x0, w, codes, du, dr, dx0, dw):
-    # The fused output's tangent, sum_j w_j dH_j + dw_j H_j; H is recomputed (no codes needed).
-    dh = tangent.bank_tangent(u, r, x0, codes, du, dr, dx0)
-    return dh @ w + _bank(u, r, x0) @ dw
+    return _call("pi_tangent", u, _sds(u.shape, u.dtype), u, r, x0, w, codes, du, dr, dx0, dw)
 
 
 def _pi_bwd(u, r, x0, w, codes, gy):

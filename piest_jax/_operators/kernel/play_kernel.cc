@@ -538,6 +538,50 @@ void BackwardOne(const T* u, int64_t len, const T* r_in, const T* w_in, const T*
   }
 }
 
+// Forward-mode tangent over one signal along (du, dr, dx0[, dw]): a state a bound moved at step t
+// (its code bit) takes the input's tangent du_t -+ dr (-dr on the lower bound, which moved it
+// exactly when the input rose; at t = 0 the comparison of x0 with u_0 + r decides, as in the
+// backward pass); a held state keeps its tangent. kBank writes dh (len, n); otherwise dy (len,),
+// sum_j w_j dx_j + dw_j x_j, with the states x_j run again by the forward recurrence.
+template <typename T, bool kBank>
+void TangentOne(const T* u, int64_t len, const T* r_in, const T* w_in, const T* x0_in, int64_t n,
+                const uint8_t* codes, const T* du, const T* dr_in, const T* dx0_in,
+                const T* dw_in, T* dh, T* dy) {
+  using V = typename Vec<T>::type;
+  using M = typename Vec<T>::mask;
+  constexpr int W = Vec<T>::kWidth;
+  const int64_t np = Padded<T>(n);
+  const int64_t nc = CodeBytes<T>(np);
+  const int64_t nv = np / W;
+  Lanes<T> p(r_in, w_in, x0_in, n, np);
+  Lanes<T> t(dr_in, dw_in, dx0_in, n, np);  // the tangents, padded alike (zero on padding)
+  std::vector<V> rv(nv), wv(nv), x(nv), d(nv), drv(nv), dwv(nv), s0(nv);
+  std::memcpy(rv.data(), p.r.data(), np * sizeof(T));
+  std::memcpy(wv.data(), p.w.data(), np * sizeof(T));
+  std::memcpy(x.data(), p.x.data(), np * sizeof(T));
+  std::memcpy(drv.data(), t.r.data(), np * sizeof(T));
+  std::memcpy(dwv.data(), t.w.data(), np * sizeof(T));
+  std::memcpy(d.data(), t.x.data(), np * sizeof(T));
+  for (int64_t v = 0; v < nv; ++v) s0[v] = ((u[0] + rv[v]) < x[v]) ? V{} + T(1) : V{} - T(1);
+  for (int64_t k = 0; k < len; ++k) {
+    const T ut = u[k];
+    const V s = k == 0 ? V{} : (ut > u[k - 1] ? V{} - T(1) : V{} + T(1));
+    V acc = {};
+    for (int64_t v = 0; v < nv; ++v) {
+      const M moved = FromBits<T>(codes[k * nc + v]);
+      const V cand = du[k] + (k == 0 ? s0[v] : s) * drv[v];
+      d[v] = reinterpret_cast<V>((moved & reinterpret_cast<M>(cand)) | (~moved & reinterpret_cast<M>(d[v])));
+      if constexpr (kBank) {
+        StoreLanes<T>(dh + k * n + v * W, d[v], std::min<int64_t>(W, n - v * W));
+      } else {
+        x[v] = Max<T>(ut - rv[v], Min<T>(ut + rv[v], x[v]));
+        acc += wv[v] * d[v] + dwv[v] * x[v];
+      }
+    }
+    if constexpr (!kBank) dy[k] = HSum<T>(acc);
+  }
+}
+
 template <typename B>
 int64_t Last(const B& buf) {
   auto d = buf.dimensions();
@@ -650,6 +694,40 @@ ffi::Error PiBwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Codes codes, Buf<D
   return ffi::Error::Success();
 }
 
+template <ffi::DataType DT>
+ffi::Error BankTan(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Codes codes, Buf<DT> du, Buf<DT> dr,
+                   Buf<DT> dx0, Res<DT> dh) {
+  using T = ffi::NativeType<DT>;
+  int64_t batch, len, n;
+  if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
+  const int64_t np = Padded<T>(n);
+  AdviseHugePages(dh->typed_data(), dh->size_bytes());
+  ParallelFor(batch, len * np, [&](int64_t b) {
+    TangentOne<T, true>(u.typed_data() + b * len, len, r.typed_data() + b * n, nullptr,
+                        x0.typed_data() + b * n, n, codes.typed_data() + b * len * CodeBytes<T>(np),
+                        du.typed_data() + b * len, dr.typed_data() + b * n,
+                        dx0.typed_data() + b * n, nullptr, dh->typed_data() + b * len * n, nullptr);
+  });
+  return ffi::Error::Success();
+}
+
+template <ffi::DataType DT>
+ffi::Error PiTan(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Codes codes, Buf<DT> du, Buf<DT> dr,
+                 Buf<DT> dx0, Buf<DT> dw, Res<DT> dy) {
+  using T = ffi::NativeType<DT>;
+  int64_t batch, len, n;
+  if (auto e = CheckShapes<DT>(u, r, &batch, &len, &n); e.failure()) return e;
+  const int64_t np = Padded<T>(n);
+  ParallelFor(batch, len * np, [&](int64_t b) {
+    TangentOne<T, false>(u.typed_data() + b * len, len, r.typed_data() + b * n,
+                         w.typed_data() + b * n, x0.typed_data() + b * n, n,
+                         codes.typed_data() + b * len * CodeBytes<T>(np), du.typed_data() + b * len,
+                         dr.typed_data() + b * n, dx0.typed_data() + b * n,
+                         dw.typed_data() + b * n, nullptr, dy->typed_data() + b * len);
+  });
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 #define PIEST_HANDLERS(SUFFIX, DT)                                                          \
@@ -702,6 +780,28 @@ ffi::Error PiBwd(Buf<DT> u, Buf<DT> r, Buf<DT> x0, Buf<DT> w, Codes codes, Buf<D
                                     .Ret<Buf<DT>>()                                         \
                                     .Ret<Buf<DT>>()                                         \
                                     .Ret<Buf<DT>>()                                         \
+                                    .Ret<Buf<DT>>());                                       \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(BankTan##SUFFIX, BankTan<DT>,                               \
+                                ffi::Ffi::Bind()                                            \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Codes>()                                           \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Ret<Buf<DT>>());                                       \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(PiTan##SUFFIX, PiTan<DT>,                                   \
+                                ffi::Ffi::Bind()                                            \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Codes>()                                           \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
+                                    .Arg<Buf<DT>>()                                         \
                                     .Ret<Buf<DT>>());
 
 PIEST_HANDLERS(F32, ffi::F32)
@@ -721,6 +821,8 @@ const Entry kEntries[] = {
     {"piest_bank_fwd_f64", BankFwdF64},     {"piest_bank_fwd_res_f64", BankFwdResF64},
     {"piest_pi_fwd_f64", PiFwdF64},         {"piest_pi_fwd_res_f64", PiFwdResF64},
     {"piest_bank_bwd_f64", BankBwdF64},     {"piest_pi_bwd_f64", PiBwdF64},
+    {"piest_bank_tangent_f32", BankTanF32}, {"piest_pi_tangent_f32", PiTanF32},
+    {"piest_bank_tangent_f64", BankTanF64}, {"piest_pi_tangent_f64", PiTanF64},
 };
 
 PyObject* Registrations(PyObject*, PyObject*) {

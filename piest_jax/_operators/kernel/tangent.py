@@ -1,61 +1,25 @@
 """Forward-mode derivatives of the kernel: the play bank's tangent as a linear JAX primitive.
 
 Along a direction (du, dr, dx0) the tangent of a play is piecewise a copy: where a bound moved the
-state at step s, dx_s = du_s ∓ dr (−dr on the lower bound x = u − r, +dr on the upper one x = u + r);
-where it held, dx_t = dx_{t−1}; before the first move, dx0. So the tangent at t is that of the last
-step up to t at which the play moved, which a running maximum of the moving steps' indices and a
-gather give without a sequential loop. The kernel's forward pass records which steps moved (its
-branch codes), so the tangent shares the kernel's convention at ties (a tie holds).
+state at step t, dx_t = du_t ∓ dr (−dr on the lower bound x = u − r, +dr on the upper one x = u + r);
+where it held, dx_t = dx_{t−1}; before the first move, dx0. The kernel's forward pass records which
+steps moved (its branch codes) and a tangent kernel runs this recurrence over them, so the tangent
+shares the kernel's convention at ties (a tie holds).
 
 The tangent is linear in (du, dr, dx0) and its transpose is the kernel's backward pass. Written as
 a primitive with that transpose rule, reverse mode keeps the backward kernel (JAX transposes the
 tangent instead of differentiating the forward pass), and forward mode (`jvp`, `jacfwd`,
-`linearize`, forward-mode solvers) gets the gather. A batching rule makes it compose with `vmap`
-in either order with both modes.
+`linearize`, forward-mode solvers) gets the tangent kernel. A batching rule makes it compose with
+`vmap` in either order with both modes.
 """
 
 from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
-from jax import lax
 from jax.extend.core import Primitive
 from jax.interpreters import ad, batching, mlir
 from jaxtyping import Array
-
-VECTOR_BYTES = 32  # the kernel's SIMD vectors: one byte of codes per vector of plays
-
-
-def moved(codes: Array, n: int, dtype) -> Array:
-    """The kernel's branch codes (T, nc) as one flag per step and play (T, n): a bound moved it.
-
-    Byte v of a row holds the plays of vector v in its low bits, play v·W + k in bit k, W =
-    32 / itemsize lanes per vector.
-    """
-    width = VECTOR_BYTES // jnp.dtype(dtype).itemsize
-    bits = (codes[:, :, None] >> jnp.arange(width, dtype=jnp.uint8)) & 1
-    return bits.reshape(codes.shape[0], -1)[:, :n].astype(bool)
-
-
-def bank_tangent(u: Array, r: Array, x0: Array, codes: Array, du: Array, dr: Array, dx0: Array) -> Array:
-    """The tangent dH (T, n) of the play bank along (du, dr, dx0), given the forward pass's codes.
-
-    **Arguments:** the input `u` (T,), thresholds `r` (n,) and initial states `x0` (n,) of the
-    forward pass, its branch codes (T, nc), and the tangents `du` (T,), `dr` (n,), `dx0` (n,).
-
-    **Returns:** dH (T, n), linear in the tangents.
-    """
-    t = u.shape[0]
-    flags = moved(codes, r.shape[0], u.dtype)
-    last = lax.cummax(jnp.where(flags, jnp.arange(t)[:, None], -1), axis=0)
-    # dx/dr of a moved state: the lower bound (−1) exactly when the input rose (t >= 1), see the
-    # codes' layout in play_kernel.cc; at t = 0 the comparison of x0 with u_0 + r decides.
-    rose = jnp.concatenate([jnp.zeros(1, bool), u[1:] > u[:-1]])
-    sign = jnp.where(rose, -1.0, 1.0).astype(u.dtype)
-    sign0 = jnp.where(u[0] + r < x0, 1.0, -1.0).astype(u.dtype)
-    at = jnp.maximum(last, 0)
-    s = jnp.where(last == 0, sign0[None, :], sign[at])
-    return jnp.where(last >= 0, du[at] + s * dr[None, :], dx0[None, :])
 
 
 def _over_leading(fn: Callable, n_leading: int) -> Callable:
