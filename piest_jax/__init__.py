@@ -113,6 +113,8 @@ _EXPORTS = {
     "Identification": ("._identification.identify", "Identification"),
     "Validation": ("._identification.identify", "Validation"),
     "identify": ("._identification.identify", "identify"),
+    "LoopDirection": ("._identification.loop", "LoopDirection"),
+    "loop_direction": ("._identification.loop", "loop_direction"),
     "fit_figure": ("._identification.figures", "fit_figure"),
     "PredictionBand": ("._identification.band", "PredictionBand"),
     "prediction_band": ("._identification.band", "prediction_band"),
@@ -271,6 +273,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.identify import Identification as Identification
     from ._identification.identify import Validation as Validation
     from ._identification.identify import identify as identify
+    from ._identification.loop import LoopDirection as LoopDirection
+    from ._identification.loop import loop_direction as loop_direction
     from ._identification.model_file import load_model as load_model
     from ._identification.model_file import save_model as save_model
     from ._identification.model_size import ModelSize as ModelSize

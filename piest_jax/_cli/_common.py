@@ -181,6 +181,21 @@ def note(args, text: str) -> None:
     args.__dict__.setdefault("_notes", []).append(text)
 
 
+def note_loop(args, loop, positive_weights: bool) -> None:
+    """Say when the record's loop runs clockwise, and what the fit did about it."""
+    if loop is None or loop.direction != "clockwise":
+        return
+    what = (
+        "fitted with signed weights, which can shape it"
+        if not positive_weights
+        else "non-negative weights cannot shape it, and this model takes no other"
+    )
+    note(
+        args,
+        f"the loop runs clockwise (the output leads the input, as an inverse PI does; score {loop.score:.0f}): {what}",
+    )
+
+
 def print_notes(args) -> None:
     """The notes `note` kept, one line each."""
     for text in getattr(args, "_notes", ()):

@@ -5,7 +5,7 @@ from .._diagnosis.figure import diagnosis_figure
 from .._report import json_text
 from . import memory
 from . import output as _io
-from ._common import CLIError, add_output_options, add_record_options, read_record, record_fields
+from ._common import CLIError, add_output_options, add_record_options, note_loop, read_record, record_fields
 
 NAME = "diagnose"
 DESCRIPTION = """\
@@ -105,6 +105,7 @@ def run(args) -> int:
         solver=None if args.solver == "none" else args.solver,
         quiet=args.quiet or args.json,
     )
+    note_loop(args, diagnosis.loop, True)
     rep = _report(diagnosis, args)
     fig = diagnosis_figure(diagnosis)
     written = [_io.write_json(out / "report.json", rep)]
@@ -137,6 +138,17 @@ def _markdown(d, data):
         "",
         f"Effects named, in order: {eff}.",
         "",
+        *(
+            [
+                f"**The loop runs clockwise** (the output leads the input, as an inverse PI does; score "
+                f"{d.loop.score:.0f}). The plain PI model's plays take non-negative weights, which shape "
+                "counterclockwise loops only: here it is close to a straight line, and the effects named "
+                "explain that rather than the device. `piest fit` fits such a loop with signed weights.",
+                "",
+            ]
+            if d.loop is not None and d.loop.direction == "clockwise"
+            else []
+        ),
         f"Noise floor (robust std of the noise in the final residual, up to the input's short time scale): "
         f"{d.noise_std_estimate:.4g}.",
         "",

@@ -19,6 +19,7 @@ from ._common import (
     add_record_options,
     finite_float,
     float_list,
+    note_loop,
     positive_float,
     positive_int,
     read_record,
@@ -67,7 +68,9 @@ that do not improve the score (--criterion bic only with --model pi; a progress 
 terminal unless --quiet). The validation record never takes part in choosing or fitting.
 --fit-from T leaves the samples before time T (a start-up transient, a rest) out of the fit
 and of its RMSE; they still drive the plays. Weights are kept positive (so the
-model can be inverted by `piest compensate`) unless --signed-weights.
+model can be inverted by `piest compensate`) unless --signed-weights, or unless the record's
+loop runs clockwise (the output leads the input, as an inverse PI does: positive weights would
+fit it with a straight line), which fit.json's loop (direction, score) and a note say.
 
 --model gpi fits y = offset + sum_k a_k tanh((v - c_k)/s_k), v = sum_j w_j H_{r_j}[u]: the PI's
 loops bent into saturating ones (B-H loops, piezos at large drive), everything jointly, with
@@ -184,7 +187,11 @@ def add_arguments(p):
         help="the plays' state before each record (default: each record's first input)",
     )
     p.add_argument("--fit-initial-states", action="store_true", help="fit the initial states as well")
-    p.add_argument("--signed-weights", action="store_true", help="allow negative weights")
+    p.add_argument(
+        "--signed-weights",
+        action="store_true",
+        help="allow negative weights (the default allows them only for a loop that runs clockwise)",
+    )
     p.add_argument("--max-threshold", type=positive_float, help="upper bound on every threshold (u units)")
     p.add_argument("--max-steps", type=positive_int, default=100, help="solver steps (default 100)")
     p.add_argument(
@@ -251,7 +258,7 @@ def run(args) -> int:
         smoothness=args.smoothness,
         solver=args.solver,
         starts=args.starts,
-        positive_weights=not args.signed_weights,
+        positive_weights=False if args.signed_weights else None,
         max_threshold=args.max_threshold,
         max_steps=args.max_steps,
     )
@@ -293,11 +300,12 @@ def run(args) -> int:
         solver=args.solver,
         key=jax.random.key(args.seed),
         starts=args.starts,
-        positive_weights=not args.signed_weights,
+        positive_weights=False if args.signed_weights else None,
         max_threshold=args.max_threshold,
         max_steps=args.max_steps,
         quiet=args.quiet,
     )
+    note_loop(args, result.loop, result.positive_weights)
     f = result.fit
     assert isinstance(f, PIFit)  # the models that saturate are fitted by fit_saturating.run
     table = parameter_table(f)

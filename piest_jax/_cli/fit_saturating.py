@@ -17,7 +17,7 @@ from .._identification.fit_preisach import PreisachFit
 from .._identification.identify import identify
 from . import memory
 from . import output as _io
-from ._common import CLIError, positive_int, record_fields
+from ._common import CLIError, note_loop, positive_int, record_fields
 
 TERMS, GRID = identify_saturating.TERMS, identify_saturating.GRID
 
@@ -84,6 +84,7 @@ def run(args, rec, val, out, options: dict) -> int:
     except ValueError as e:
         raise CLIError(f"{args.data}: {' '.join(str(e).split())}") from None
     assert isinstance(result.fit, GPIFit | PreisachFit)  # options["model"] is one that saturates
+    note_loop(args, result.loop, result.positive_weights)
     report = {**result.to_json(), **record_fields(rec, args)}
     table = "" if result.fit.std_errors is None else parameter_table(result.fit)
     written = [

@@ -22,6 +22,7 @@ import numpy as np
 
 from .._data.record import Record
 from .._identification.compare import fit_percent
+from .._identification.loop import loop_direction
 from .._identification.solvers import check_solver
 from .._progress import progress
 from . import locate as _locate
@@ -507,6 +508,7 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnos
         baseline_prediction=pred_b,
         final_prediction=pred_f,
         validation=checked,
+        loop=loop_direction(rec.u, rec.y),
     )
 
 

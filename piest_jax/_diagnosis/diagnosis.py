@@ -8,6 +8,7 @@ from collections.abc import Iterator, Mapping
 import numpy as np
 
 from .._data.record import Record
+from .._identification.loop import LoopDirection
 from .effects import EFFECT
 
 
@@ -106,6 +107,11 @@ class Diagnosis(Mapping):
       standard errors (`values`, `std_errors`, `undetermined`, `method`, `samples`: the
       Newey-West estimate from the refined model's Jacobian, as `fit_pi` gives its own); None
       when no effect is named.
+    - `loop`: which way the record's loop runs ([`LoopDirection`][piest_jax.LoopDirection]). The
+      diagnosis's plays take non-negative weights, which shape counterclockwise loops only: on a
+      clockwise one (the output leads the input, as an inverse PI does) its plain model is
+      close to a straight line and the effects it names explain that, not the device; `piest
+      fit` fits such a loop with signed weights.
 
     **Properties:** `transferable_effects` (functions of the input, which carry over to another
     record), `record_specific_effects` (tied to this record: its unrecorded past, its drift),
@@ -129,6 +135,7 @@ class Diagnosis(Mapping):
     final_prediction: np.ndarray
     validation: DiagnosisValidation | None = None
     uncertainty: dict | None = None
+    loop: LoopDirection | None = None
 
     @property
     def transferable_effects(self) -> list:
@@ -159,7 +166,7 @@ class Diagnosis(Mapping):
         `final_rmse`, `noise_std_estimate`, `candidates`, `parameters`, `uncertainty` (when an
         effect is named), `refinement`, `rounds`,
         `pruned`, `heldout` (`baseline_rmse`, `final_rmse`), `n_samples`, `search_step`,
-        `where` and, with a validation record, `validation`.
+        `where`, `loop` (`direction`, `score`) and, with a validation record, `validation`.
         """
         report = {
             "effects": list(self.effects),
@@ -179,6 +186,8 @@ class Diagnosis(Mapping):
             "search_step": self.search_step,
             "where": copy.deepcopy(self.where),
         }
+        if self.loop is not None:
+            report["loop"] = self.loop.to_json()
         if self.validation is not None:
             report["validation"] = self.validation.to_json()
         return report

@@ -34,6 +34,7 @@ from .identify_saturating import (
     report_keys,
     validation_comparison,
 )
+from .loop import LoopDirection, loop_direction
 from .model_file import model_keys
 from .model_size import CRITERIA, HOLDOUT, ModelSize, holdout_mask, select_plays
 from .model_structure import ModelChoice, select_model
@@ -98,6 +99,8 @@ class Identification:
     - `solver`: the solver's name (or an optimistix solver object, as given).
     - `fit_from`: the time from which samples were fitted, or None (all of them).
     - `positive_weights`: whether the weights (a Preisach density) were kept non-negative.
+    - `loop`: which way the record's loop runs ([`LoopDirection`][]), or None (not looked at).
+      With `positive_weights=None` a clockwise loop was fitted with signed weights.
     """
 
     fit: PIFit | GPIFit | PreisachFit
@@ -107,6 +110,7 @@ class Identification:
     solver: object = "lm"
     fit_from: float | None = None
     positive_weights: bool = True
+    loop: LoopDirection | None = None
 
     @property
     def mask(self) -> np.ndarray | None:
@@ -147,6 +151,9 @@ class Identification:
                 "start_rmse": f.start_rmse,
             }
         report.update(input_extent(rec, self.mask))
+        report["positive_weights"] = self.positive_weights
+        if self.loop is not None:
+            report["loop"] = self.loop.to_json()
         if self.fit_from is not None:
             report["fit_from"] = self.fit_from
         if self.selection is not None:
@@ -377,7 +384,7 @@ def identify(
     solver="lm",
     key=None,
     starts: int = 4,
-    positive_weights: bool = True,
+    positive_weights: bool | None = None,
     initial_states: float | None = None,
     fit_initial_states: bool = False,
     max_threshold: float | None = None,
@@ -406,8 +413,13 @@ def identify(
       interval and 100 times the record's duration.
     - `fit_from`: fit only the samples at time >= `fit_from` (the earlier ones still drive the
       plays), or None.
-    - `solver`, `key`, `starts` (`n_starts`), `positive_weights`, `initial_states`,
-      `fit_initial_states`, `max_threshold`, `max_steps`: as for [`fit_pi`][].
+    - `positive_weights`: keep the weights (a Preisach density) non-negative (True), or not
+      (False); None, the default, decides by the record's loop ([`loop_direction`][]):
+      non-negative unless the loop runs clockwise (the output leads the input, as an inverse PI
+      does), which non-negative weights cannot shape (they would fit a straight line); a
+      `"gpi"` model keeps non-negative weights.
+    - `solver`, `key`, `starts` (`n_starts`), `initial_states`, `fit_initial_states`,
+      `max_threshold`, `max_steps`: as for [`fit_pi`][].
     - `terms`: `model="gpi"`: the tanh terms of the output function (default 2).
     - `grid`: `model="preisach"`: (half-widths, centres) of the relay grid (default (16, 16));
       `smoothness`: its density's smoothness penalty (default: chosen on held-out blocks);
@@ -432,6 +444,11 @@ def identify(
     )
     if validation is not None and not isinstance(validation, Record):
         raise ValueError(f"`validation` must be a Record or None, got {type(validation).__name__}")
+    _check_record(record)
+    loop = loop_direction(record.u, record.y)
+    if positive_weights is None:
+        # A GPI's plays and output function take non-negative weights only.
+        positive_weights = loop.direction != "clockwise" or model == "gpi"
     saturating = dict(
         terms=terms,
         grid=grid,
@@ -466,7 +483,7 @@ def identify(
                     states = validation.u[0] if initial_states is None else initial_states
                 band = prediction_band(fit, validation.u, initial_states=states)
             checked = Validation(validation, raw, None, starts_at_rest(validation.u), convention, band)
-        return Identification(fit, record, None, checked, solver, fit_from, positive_weights)
+        return Identification(fit, record, None, checked, solver, fit_from, positive_weights, loop)
     p = plan(record, fit_from=fit_from, **options)
     fit_options = dict(
         mask=p.mask,
@@ -487,7 +504,7 @@ def identify(
     checked = None
     if validation is not None:
         checked = _validate(fit, record, validation, initial_states, fit_initial_states)
-    return Identification(fit, record, selection, checked, solver, fit_from)
+    return Identification(fit, record, selection, checked, solver, fit_from, positive_weights, loop)
 
 
 def _choose_and_fit(record, p: Plan, *, model, plays, criterion, quiet, **fit_options):

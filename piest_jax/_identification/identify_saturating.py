@@ -53,6 +53,8 @@ def check_saturating(options: dict) -> None:
                 raise ValueError(f"`{name}` is used only by `model` {owner}, not `model` {model}")
         return
     for name, default in _IGNORED[model].items():
+        if name == "positive_weights" and options.get(name) is None:
+            continue  # decided by the record's loop, for the models that can take signed weights
         if name in options and not _same(options[name], default):
             what = "signed weights (`positive_weights` False)" if name == "positive_weights" else f"`{name}`"
             raise ValueError(f"{what} does not apply to `model` {model}; leave it out")
