@@ -298,6 +298,7 @@ def test_cli_report_is_the_diagnosis_json(csv_files, tmp_path):
         "n_samples",
         "search_step",
         "where",
+        "loop",
         "validation",
         "data",
     ]
