@@ -219,24 +219,29 @@ def test_gradients_at_every_block_boundary(rng, dtype):
 
 
 @needs_kernel
+def _reference_jacobian(args, k, h=1e-6):
+    """Central differences (T, size) of the float64 NumPy PI output in argument k of (u, r, x0, w).
+
+    The output is piecewise linear in every argument, so away from switching instants a small
+    step is exact up to rounding.
+    """
+    cols = []
+    for i in range(args[k].size):
+        plus, minus = [a.copy() for a in args], [a.copy() for a in args]
+        plus[k][i] += h
+        minus[k][i] -= h
+        pi_plus, pi_minus = (ref.pi(a[0], a[1], a[3], a[2]) for a in (plus, minus))
+        cols.append((pi_plus - pi_minus) / (2 * h))
+    return np.stack(cols, axis=1)
+
+
 def test_kernel_gradients_match_finite_differences(rng):
-    # Central differences of the float64 NumPy reference; the output is piecewise linear in every
-    # argument, so away from switching instants a small step is exact up to rounding.
     u, r, x0, w = _case(rng, 30, 6, np.float64)
     gy = rng.normal(size=30)
     assert not _has_ties(u, r, x0)
     grads = _pi_grad(u, r, x0, w, gy, method="kernel")
-    args = [u, r, x0, w]
-    h = 1e-6
     for k, grad in enumerate(grads):
-        fd = np.empty_like(args[k])
-        for i in range(args[k].size):
-            plus = [a.copy() for a in args]
-            minus = [a.copy() for a in args]
-            plus[k][i] += h
-            minus[k][i] -= h
-            f = lambda a: gy @ ref.pi(a[0], a[1], a[3], a[2])  # noqa: E731
-            fd[i] = (f(plus) - f(minus)) / (2 * h)
+        fd = gy @ _reference_jacobian([u, r, x0, w], k)
         np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-6, err_msg=f"argument {k}")
 
 
@@ -299,8 +304,7 @@ def test_forward_mode_agrees_with_the_scan(case):
     u, r, x0, w, g = case
     if _has_ties(u, r, x0):
         return
-    rng = np.random.default_rng(int(abs(u[0]) * 1e6) % 2**32)
-    du, dr, dx0, dw = (rng.normal(size=a.shape).astype(u.dtype) for a in (u, r, x0, w))
+    du, dr, dx0, dw = g[:, 0], g[0], g[1], g[2]  # the case's random normals as tangents
     y, dy = _pi_jvp(u, r, x0, w, du, dr, dx0, dw, method="kernel")
     y_s, dy_s = _pi_jvp(u, r, x0, w, du, dr, dx0, dw, method="scan")
     np.testing.assert_array_equal(y, _pi(u, r, x0, w, "kernel"))
@@ -312,24 +316,15 @@ def test_forward_mode_agrees_with_the_scan(case):
 
 @needs_kernel
 def test_forward_mode_matches_finite_differences_and_reverse_mode(rng):
-    # jacfwd against central differences of the float64 NumPy reference (the output is piecewise
-    # linear, so a small step is exact up to rounding), and against jacrev: the transpose of the
-    # tangent is the backward kernel.
+    # jacfwd against central differences of the float64 NumPy reference, and against jacrev: the
+    # transpose of the tangent is the backward kernel.
     u, r, x0, w = _case(rng, 30, 6, np.float64)
     assert not _has_ties(u, r, x0)
     args = [u, r, x0, w]
     f = lambda *a: pj.PIOperator(a[1], a[3], a[2], method="kernel")(a[0])  # noqa: E731
-    h = 1e-6
     for k in range(4):
         jac = np.asarray(jax.jacfwd(f, argnums=k)(*args))
-        fd = np.empty_like(jac)
-        for i in range(args[k].size):
-            plus, minus = [a.copy() for a in args], [a.copy() for a in args]
-            plus[k][i] += h
-            minus[k][i] -= h
-            pi_plus, pi_minus = (ref.pi(a[0], a[1], a[3], a[2]) for a in (plus, minus))
-            fd[:, i] = (pi_plus - pi_minus) / (2 * h)
-        np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-6, err_msg=f"argument {k}")
+        np.testing.assert_allclose(jac, _reference_jacobian(args, k), rtol=1e-6, atol=1e-6, err_msg=f"argument {k}")
         np.testing.assert_allclose(jac, jax.jacrev(f, argnums=k)(*args), rtol=1e-12, atol=1e-12)
 
 

@@ -444,11 +444,6 @@ def identify(
     )
     if validation is not None and not isinstance(validation, Record):
         raise ValueError(f"`validation` must be a Record or None, got {type(validation).__name__}")
-    _check_record(record)
-    loop = loop_direction(record.u, record.y)
-    if positive_weights is None:
-        # A GPI's plays and output function take non-negative weights only.
-        positive_weights = loop.direction != "clockwise" or model == "gpi"
     saturating = dict(
         terms=terms,
         grid=grid,
@@ -460,8 +455,13 @@ def identify(
         max_steps=max_steps,
     )
     check_options(**options, **saturating)
+    _check_record(record)
+    loop = loop_direction(record.u, record.y)
+    if positive_weights is None:
+        # A GPI's plays and output function take non-negative weights only.
+        positive_weights = loop.direction != "clockwise" or model == "gpi"
+        saturating["positive_weights"] = positive_weights
     if model in SATURATING:
-        _check_record(record)
         mask = fit_mask(record, fit_from)
         fit = fit_saturating(
             record,

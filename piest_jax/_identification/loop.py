@@ -60,11 +60,11 @@ def loop_direction(u, y) -> LoopDirection:
     A = np.column_stack([np.ones_like(u), u])
     e = y - A @ np.linalg.lstsq(A, y, rcond=None)[0]
     du = np.diff(u)
-    spread = float(np.std(e)) * float(np.sqrt(np.sum(du**2)))
+    sd = float(np.std(e))
     # A residual at the rounding of the data (an output exactly on a line) is no loop, whatever
     # its sign pattern.
-    if not float(np.std(e)) > 64 * np.finfo(float).eps * float(np.max(np.abs(y))):
+    if not sd > 64 * np.finfo(float).eps * float(np.max(np.abs(y))):
         return LoopDirection("none", 0.0)
-    score = float(np.sum(0.5 * (e[1:] + e[:-1]) * du) / spread)
+    score = float(np.sum(0.5 * (e[1:] + e[:-1]) * du) / (sd * np.sqrt(np.sum(du**2))))
     direction = "clockwise" if score > SCORE_BAR else "counterclockwise" if score < -SCORE_BAR else "none"
     return LoopDirection(direction, score)

@@ -10,10 +10,10 @@ play, one bit: whether a bound moved the state (which bound follows from the dir
 input). A third kernel runs the tangent along (du, dr, dx0) forwards in time over those bits (a
 moved state takes the input's tangent, a held one keeps its own), and the tangent's transpose,
 which reverse mode uses, is the backward kernel: it runs the adjoint recurrence backwards in time
-over the same bits (`tangent.py` makes the pair one linear JAX primitive). So `jvp`, `jacfwd`, `linearize`, `grad`
-and `jacrev` all work, to first order (a second derivative of a piecewise-linear operator is zero
-wherever it exists; for nested differentiation use the scan). At a
-kink (the old state exactly equal to a bound) the kernel counts the step as a hold, so the
+over the same bits (`tangent.py` makes the pair one linear JAX primitive). So `jvp`, `jacfwd`,
+`linearize`, `grad` and `jacrev` all work, to first order (a second derivative of a
+piecewise-linear operator is zero wherever it exists; for nested differentiation use the scan).
+At a kink (the old state exactly equal to a bound) the kernel counts the step as a hold, so the
 derivative is the one-sided derivative in which the play does not move; the pure-JAX scan instead
 averages the two sides. Likewise for a zero threshold, where both bounds equal u: the kernel gives
 the threshold derivative from the admissible side r > 0, the scan the average of both sides (zero).
