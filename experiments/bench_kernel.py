@@ -19,6 +19,11 @@ the scan; `kernel_vjp` times the kernel's backward pass alone (residuals precomp
 mode: `jit(jvp)` along one tangent in all four arguments (the output and its tangent), for the
 kernel (`kernel_jvp`) and the scan (`jax_scan_jvp`).
 
+The kernel rows run the build this CPU gets (`config.kernel_isa`: the AVX2/FMA module where the CPU
+has them); `kernel_portable`, `kernel_portable_grad` and `kernel_portable_jvp` time the portable
+module (the target's baseline, SSE2 on x86-64, that runs on any CPU) on the same inputs, in a
+subprocess started with `PIEST_KERNEL_ISA=portable` (one process registers one of the two).
+
 Every row is timed in interleaved rounds (per round and row, an untimed call and then a timed one,
 with `block_until_ready`) and reported as the minimum over rounds, which filters out the time slices
 lost to other processes on a shared machine (rows slower than 1 s per call get 3 rounds and no
@@ -33,6 +38,7 @@ Run: python experiments/bench_kernel.py [--out experiments/results/bench_kernel.
 
 import argparse
 import ctypes
+import json
 import os
 import platform
 import subprocess
@@ -44,7 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from piest_jax import PIOperator, write_json
+from piest_jax import PIOperator, kernel_isa, write_json
 from piest_jax import kernel_available as available
 
 N_PLAYS = 32
@@ -58,6 +64,8 @@ TARGETS = {
     "single_forward_kernel_vs_c_O3": 0.6,
     "single_grad_over_forward_max": 3.0,
     "batch_grad_over_forward_max": 3.0,
+    "single_forward_portable_vs_jax_scan": 1.0,
+    "batch_forward_portable_vs_jax_scan": 1.0,
 }
 
 C_SOURCE = r"""
@@ -151,6 +159,51 @@ def _jax_rows(method, batched):
     return jax.jit(fwd), jax.jit(grad), jax.jit(jvp)
 
 
+def _inputs(t_single, batch, seed):
+    """Thresholds, weights, states and, per case, the input and the output cotangent/tangent."""
+    rng = np.random.default_rng(seed)
+    r = np.linspace(0.0, 1.5, N_PLAYS).astype(np.float32)
+    w = rng.uniform(0.1, 1.0, N_PLAYS).astype(np.float32)
+    x0 = np.zeros(N_PLAYS, np.float32)
+    b_batch, t_batch = batch
+    u1 = np.cumsum(rng.normal(0, 0.1, t_single)).astype(np.float32)
+    ub = np.cumsum(rng.normal(0, 0.1, (b_batch, t_batch)), axis=1).astype(np.float32)
+    cases = {name: (u, rng.normal(size=u.shape).astype(np.float32)) for name, u in (("single", u1), ("batch", ub))}
+    return r, w, x0, cases
+
+
+def _kernel_rows(u, r, w, x0, g):
+    """The kernel's rows on one case: forward, jit(grad), the backward pass alone, jit(jvp)."""
+    batched = u.ndim == 2
+    fwd, grad, jvp = _jax_rows("kernel", batched)
+    return {
+        "kernel": lambda: fwd(u, r, w, x0),
+        "kernel_grad": lambda: grad(u, r, w, x0, g),
+        "kernel_vjp": _vjp_only(batched)(u, r, w, x0, g),
+        "kernel_jvp": lambda: jvp(u, r, w, x0, g),
+    }
+
+
+def _portable_seconds(t_single, batch, rounds, seed):
+    """The kernel rows of the portable build, timed in a subprocess on the same inputs."""
+    cmd = [sys.executable, __file__, "--portable-rows", json.dumps([t_single, list(batch), rounds, seed])]
+    env = {**os.environ, "PIEST_KERNEL_ISA": "portable"}
+    out = subprocess.run(cmd, capture_output=True, text=True, env=env, check=True)
+    return json.loads(out.stdout)
+
+
+def _time_portable(t_single, batch, rounds, seed):
+    if kernel_isa() != ():
+        raise SystemExit(f"expected the portable kernel, got {kernel_isa()}")
+    r, w, x0, cases = _inputs(t_single, tuple(batch), seed)
+    results = {}
+    for case, (u, g) in cases.items():
+        rows = _kernel_rows(*(jnp.asarray(a) for a in (u, r, w, x0, g)))
+        seconds, cpu_seconds = _time_rows(rows, rounds)
+        results[case] = {"seconds": seconds, "cpu_seconds": cpu_seconds}
+    return results
+
+
 def _vjp_only(batched):
     def forward(u, r, w, x0):
         return PIOperator(r, w, x0, method="kernel")(u)
@@ -206,49 +259,39 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
     if not available():
         raise SystemExit("the compiled play kernel is not built; reinstall with a C++ compiler")
     load_at_start = list(os.getloadavg())
-    rng = np.random.default_rng(seed)
-    r = np.linspace(0.0, 1.5, N_PLAYS).astype(np.float32)
-    w = rng.uniform(0.1, 1.0, N_PLAYS).astype(np.float32)
-    x0 = np.zeros(N_PLAYS, np.float32)
-    b_batch, t_batch = batch
-    u1 = np.cumsum(rng.normal(0, 0.1, t_single)).astype(np.float32)
-    ub = np.cumsum(rng.normal(0, 0.1, (b_batch, t_batch)), axis=1).astype(np.float32)
+    r, w, x0, cases = _inputs(t_single, batch, seed)
     nb_single, nb_batch = _numba_loops()
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         c_plain = _c_loop(tmp, [])
         c_fast = _c_loop(tmp, ["-march=native", "-ffast-math"])
-        for case, u, nb_name, nb_fn in (
-            ("single", u1, "numba", nb_single),
-            ("batch", ub, "numba_prange", nb_batch),
+        for case, (u, g), nb_name, nb_fn in (
+            ("single", cases["single"], "numba", nb_single),
+            ("batch", cases["batch"], "numba_prange", nb_batch),
         ):
             batched = u.ndim == 2
-            ju, jr, jw, jx0 = (jnp.asarray(a) for a in (u, r, w, x0))
-            g = jnp.asarray(rng.normal(size=u.shape).astype(np.float32))
-            k_fwd, k_grad, k_jvp = _jax_rows("kernel", batched)
+            ju, jr, jw, jx0, jg = (jnp.asarray(a) for a in (u, r, w, x0, g))
             s_fwd, s_grad, s_jvp = _jax_rows("scan", batched)
             d_fwd = _jax_rows(None, batched)[0]
             y = np.empty_like(u)
             rows = {
-                "kernel": lambda f=k_fwd: f(ju, jr, jw, jx0),
-                "kernel_grad": lambda f=k_grad: f(ju, jr, jw, jx0, g),
-                "kernel_vjp": _vjp_only(batched)(ju, jr, jw, jx0, g),
-                "kernel_jvp": lambda f=k_jvp: f(ju, jr, jw, jx0, g),
+                **_kernel_rows(ju, jr, jw, jx0, jg),
                 "default": lambda f=d_fwd: f(ju, jr, jw, jx0),
                 nb_name: lambda f=nb_fn: f(u, r, w, x0, y),
                 "c_O3": lambda: c_plain(u, r, w, x0, y),
                 "c_O3_fast_native": lambda: c_fast(u, r, w, x0, y),
                 "jax_scan": lambda f=s_fwd: f(ju, jr, jw, jx0),
-                "jax_scan_grad": lambda f=s_grad: f(ju, jr, jw, jx0, g),
-                "jax_scan_jvp": lambda f=s_jvp: f(ju, jr, jw, jx0, g),
+                "jax_scan_grad": lambda f=s_grad: f(ju, jr, jw, jx0, jg),
+                "jax_scan_jvp": lambda f=s_jvp: f(ju, jr, jw, jx0, jg),
             }
             seconds, cpu_seconds = _time_rows(rows, rounds)
-            elems = u.size * N_PLAYS
-            results[case] = {
-                "seconds": seconds,
-                "cpu_seconds": cpu_seconds,
-                "gelem_per_s": {k: elems / v / 1e9 for k, v in seconds.items()},
-            }
+            results[case] = {"seconds": seconds, "cpu_seconds": cpu_seconds}
+    portable = _portable_seconds(t_single, batch, rounds, seed)
+    for case, res in results.items():
+        for key in ("seconds", "cpu_seconds"):
+            res[key].update({f"kernel_portable{k[6:]}": v for k, v in portable[case][key].items()})
+        elems = cases[case][0].size * N_PLAYS
+        res["gelem_per_s"] = {k: elems / v / 1e9 for k, v in res["seconds"].items()}
     s, b = results["single"]["seconds"], results["batch"]["seconds"]
     sc, bc = results["single"]["cpu_seconds"], results["batch"]["cpu_seconds"]
     ratios = {
@@ -272,6 +315,14 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
         "batch_jvp_over_forward": b["kernel_jvp"] / b["kernel"],
         "single_jvp_kernel_vs_jax_scan": s["jax_scan_jvp"] / s["kernel_jvp"],
         "batch_jvp_kernel_vs_jax_scan": b["jax_scan_jvp"] / b["kernel_jvp"],
+        "single_forward_portable_vs_jax_scan": s["jax_scan"] / s["kernel_portable"],
+        "batch_forward_portable_vs_jax_scan": b["jax_scan"] / b["kernel_portable"],
+        "single_grad_portable_vs_jax_scan": s["jax_scan_grad"] / s["kernel_portable_grad"],
+        "batch_grad_portable_vs_jax_scan": b["jax_scan_grad"] / b["kernel_portable_grad"],
+        "single_jvp_portable_vs_jax_scan": s["jax_scan_jvp"] / s["kernel_portable_jvp"],
+        "batch_jvp_portable_vs_jax_scan": b["jax_scan_jvp"] / b["kernel_portable_jvp"],
+        "single_forward_portable_over_kernel": s["kernel_portable"] / s["kernel"],
+        "batch_forward_portable_over_kernel": b["kernel_portable"] / b["kernel"],
     }
     met = {k: (ratios[k] <= v if k.endswith("_max") else ratios[k] >= v) for k, v in TARGETS.items()}
     import numba
@@ -281,7 +332,7 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
     results["config"] = {
         "n_plays": N_PLAYS,
         "single_T": t_single,
-        "batch": [b_batch, t_batch],
+        "batch": list(batch),
         "dtype": "float32",
         "rounds": rounds,
         "timing": "minimum wall time over interleaved rounds, each an untimed then a timed call "
@@ -296,6 +347,7 @@ def run_benchmark(t_single=10**6, batch=(256, 2 * 10**4), rounds=30, seed=0):
         "numba": numba.__version__,
         "numba_threads": numba.get_num_threads(),
         "kernel_threads": os.environ.get("PIEST_KERNEL_THREADS", "all cores"),
+        "kernel_isa": list(kernel_isa()),
     }
     return results
 
@@ -314,6 +366,13 @@ def markdown_table(results) -> str:
     for label, fwd_s, fwd_b, grad, jvp in (
         ("default PIOperator", "default", "default", None, None),
         ("compiled kernel", "kernel", "kernel", "kernel_grad", "kernel_jvp"),
+        (
+            "compiled kernel, portable build",
+            "kernel_portable",
+            "kernel_portable",
+            "kernel_portable_grad",
+            "kernel_portable_jvp",
+        ),
         ("JAX lax.scan", "jax_scan", "jax_scan", "jax_scan_grad", "jax_scan_jvp"),
         ("Numba njit(fastmath) / prange", "numba", "numba_prange", None, None),
         ("C -O3 (ctypes)", "c_O3", "c_O3", None, None),
@@ -331,7 +390,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="experiments/results/bench_kernel.json")
     ap.add_argument("--rounds", type=int, default=30)
     ap.add_argument("--quick", action="store_true", help="small sizes, a smoke test")
+    ap.add_argument("--portable-rows", help=argparse.SUPPRESS)  # the subprocess of the portable rows
     args = ap.parse_args(argv)
+    if args.portable_rows:
+        print(json.dumps(_time_portable(*json.loads(args.portable_rows))))
+        return 0
     sizes = {"t_single": 10**5, "batch": (32, 2 * 10**3)} if args.quick else {}
     results = run_benchmark(rounds=args.rounds, **sizes)
     write_json(args.out, results)

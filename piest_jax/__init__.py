@@ -26,6 +26,7 @@ _EXPORTS = {
     "play_step": ("._operators.play", "play_step"),
     "stop": ("._operators.play", "stop"),
     "kernel_available": ("._operators.kernel.binding", "available"),
+    "kernel_isa": ("._operators.kernel.binding", "isa"),
     "loop_figure": ("._operators.figure", "loop_figure"),
     # estimation
     "AbstractEstimator": ("._estimation.estimators", "AbstractEstimator"),
@@ -290,6 +291,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._models.preisach import Preisach as Preisach
     from ._operators.figure import loop_figure as loop_figure
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401
+    from ._operators.kernel.binding import isa as kernel_isa  # noqa: F401
     from ._operators.pi import AbstractHysteresisOperator as AbstractHysteresisOperator
     from ._operators.pi import PIOperator as PIOperator
     from ._operators.pi import inverse as inverse

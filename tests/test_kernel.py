@@ -593,15 +593,94 @@ def test_non_finite_input_raises_eagerly_under_jit_vmap_and_grad(bad):
     np.testing.assert_array_equal(jax.jit(jax.vmap(op))(batch[:1])[0], op(np.zeros(12)))
 
 
+def _module(name):
+    import importlib
+
+    return importlib.import_module(f"piest_jax._operators.kernel.{name}")
+
+
+def _built(name) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(f"piest_jax._operators.kernel.{name}") is not None
+
+
 @needs_kernel
-def test_a_binary_for_missing_cpu_features_is_refused(monkeypatch):
-    # A kernel compiled with AVX2/FMA and copied to a CPU without them must not be loaded.
-    assert K._missing_isa(()) == []
-    monkeypatch.setattr(K, "_missing_isa", lambda required: ["avx2", "fma"])
+def test_the_avx2_build_runs_where_the_cpu_has_it_and_the_portable_one_elsewhere(monkeypatch):
+    portable = _module("_play_kernel")
+    assert portable.isa() == ()  # the target's baseline: it runs on every CPU of the architecture
+    has_avx2 = K._missing_isa(("avx2", "fma"), portable) == []
+    # CPUID (the module) and the OS's list (/proc/cpuinfo, where there is one) agree.
+    if os.path.exists("/proc/cpuinfo"):
+        assert has_avx2 == (K._missing_isa(("avx2", "fma")) == [])
+    assert K.isa() == (("avx2", "fma") if has_avx2 and _built("_play_kernel_avx2") else ())
+    # On a CPU without AVX2 the portable build is loaded, not refused.
+    monkeypatch.setattr(K, "_missing_isa", lambda required, probe=None: list(required))
+    ext, reason = K._load()
+    assert ext is portable and reason == ""
+
+
+@needs_kernel
+def test_a_binary_built_for_missing_cpu_features_is_refused(monkeypatch):
+    # A portable module built with machine flags (CFLAGS=-march=...) and moved to a CPU without
+    # them must not be loaded: here the AVX2 build stands in for it, on a CPU said to lack AVX2.
+    if not _built("_play_kernel_avx2"):
+        pytest.skip("no AVX2 build here")
+    wide = _module("_play_kernel_avx2")
+    monkeypatch.setattr(K, "_import", lambda module: (wide, ""))
+    monkeypatch.setattr(K, "_missing_isa", lambda required, probe=None: list(required))
     ext, reason = K._load()
     assert ext is None
     assert "compiled for avx2, fma, which this CPU lacks" in reason
-    assert "PIEST_KERNEL_NATIVE=0" in reason
+    assert "-march" in reason
+
+
+@needs_kernel
+def test_an_unknown_kernel_isa_choice_is_named(monkeypatch):
+    monkeypatch.setenv("PIEST_KERNEL_ISA", "avx512")
+    ext, reason = K._load()
+    assert ext is None
+    assert reason == "PIEST_KERNEL_ISA='avx512' is not one of auto, portable"
+
+
+@needs_kernel
+def test_the_portable_build_equals_the_scan_in_a_fresh_process():
+    # The portable module (16-byte vectors) through every entry point: the bank to the last bit,
+    # the PI output to rounding, and both derivative modes against the scan, off the tie set.
+    code = textwrap.dedent(
+        """
+        import jax, jax.numpy as jnp, numpy as np
+        jax.config.update("jax_enable_x64", True)
+        import piest_jax as pj
+        from piest_jax._operators.kernel import isa
+        assert isa() == (), isa()
+        rng = np.random.default_rng(7)
+        for dtype, tol in ((np.float64, 1e-12), (np.float32, 1e-4)):
+            for t, n in ((1, 1), (37, 3), (200, 9), (64, 17)):
+                u = rng.normal(0.0, 1.0, t).cumsum().astype(dtype)
+                r = np.sort(rng.uniform(0.05, 2.5, n)).astype(dtype)
+                x0 = rng.normal(0.0, 2.0, n).astype(dtype)
+                w = rng.normal(0.0, 1.0, n).astype(dtype)
+                hk = pj.play(u, r, x0, method="kernel")
+                assert np.array_equal(hk, pj.play(u, r, x0, method="scan")), (dtype, t, n)
+                yk = pj.PIOperator(r, w, x0, method="kernel")(u)
+                ys = pj.PIOperator(r, w, x0, method="scan")(u)
+                np.testing.assert_allclose(yk, ys, rtol=tol, atol=tol)
+                for m in ("kernel", "scan"):
+                    loss = lambda u, r, x0, m=m: jnp.sum(jnp.sin(pj.PIOperator(r, w, x0, method=m)(u)))
+                    g = jax.grad(loss, argnums=(0, 1, 2))(u, r, x0)
+                    jv = jax.jvp(lambda u: pj.play(u, r, x0, method=m), (u,), (np.ones_like(u),))[1]
+                    if m == "kernel":
+                        gk, jk = g, jv
+                for a, b in zip((*gk, jk), (*g, jv)):
+                    np.testing.assert_allclose(a, b, rtol=tol, atol=tol)
+        print("ok")
+        """
+    )
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PIEST_KERNEL_ISA": "portable"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
 
 
 @needs_kernel

@@ -28,11 +28,19 @@ environment with the newest jaxlib unless told `--no-build-isolation`; an XLA ru
 built for other headers can break the whole CPU backend), or was compiled for instructions this CPU
 lacks, `method="kernel"` and `method="auto"` on
 a CPU backend fall back to the scan and warn once per process.
+
+One build holds two kernel modules from the same source: a portable one for the target's baseline
+(SSE2 on x86-64: 16-byte vectors) and, where the compiler has the flags, one with AVX2/FMA (32-byte
+vectors). The AVX2 module is loaded where CPUID reports both extensions, the portable one elsewhere
+or with `PIEST_KERNEL_ISA=portable`; `isa()` says which runs. The play outputs of both equal the
+scan's to the last bit; the fused PI output may differ between them in the last bits (its lane sums
+follow the vector width).
 """
 
 import functools
 import importlib
 import importlib.util
+import os
 import warnings
 
 import equinox as eqx
@@ -45,8 +53,14 @@ from ... import _checks
 from . import tangent
 
 
-def _missing_isa(required) -> list[str]:
-    """The instruction-set extensions in `required` that this CPU lacks (Linux; else none)."""
+def _missing_isa(required, probe=None) -> list[str]:
+    """The instruction-set extensions in `required` that this CPU lacks.
+
+    `probe` is a loaded kernel module, whose `cpu_has` asks CPUID (x86); without one, Linux's
+    /proc/cpuinfo tells, and elsewhere nothing is reported missing.
+    """
+    if probe is not None and hasattr(probe, "cpu_has"):
+        return [name for name in required if not probe.cpu_has(name)]
     try:
         with open("/proc/cpuinfo") as f:
             flags = next((ln.split(":", 1)[1].split() for ln in f if ln.startswith("flags")), None)
@@ -66,8 +80,9 @@ def _built_with(ext) -> str:
     return ext.built_with() if hasattr(ext, "built_with") else "unknown"
 
 
-def _load():
-    name = __package__ + "._play_kernel"
+def _import(module: str):
+    """(the kernel module `module`, "") or (None, why it cannot be used)."""
+    name = f"{__package__}.{module}"
     if importlib.util.find_spec(name) is None:
         return None, "it was not built when the package was installed"
     try:
@@ -80,13 +95,44 @@ def _load():
             f"it was compiled against jaxlib {built}, but jaxlib {installed} is installed; "
             "reinstall piest_jax against the installed jaxlib (pip install --no-build-isolation ...)"
         )
-    missing = _missing_isa(ext.isa())
-    if missing:  # a binary built on another machine: running it would crash the process
+    return ext, ""
+
+
+# The kernel builds: the portable module (the target's baseline, SSE2 on x86-64) and, where the
+# compiler could, one with AVX2/FMA, taken on CPUs that have them. PIEST_KERNEL_ISA=portable keeps
+# the portable module (to compare the two, or to rule the wide one out).
+_ISA_CHOICES = ("auto", "portable")
+_FAST = ("_play_kernel_avx2", ("avx2", "fma"))
+
+
+def _load():
+    choice = os.environ.get("PIEST_KERNEL_ISA", "auto")
+    if choice not in _ISA_CHOICES:
+        return None, f"PIEST_KERNEL_ISA={choice!r} is not one of {', '.join(_ISA_CHOICES)}"
+    portable, reason = _import("_play_kernel")
+    if portable is None:
+        return None, reason
+    module, isa = _FAST
+    if choice == "auto" and not _missing_isa(isa, portable):
+        fast, _ = _import(module)
+        if fast is not None:
+            return fast, ""
+    missing = _missing_isa(portable.isa(), portable)
+    if missing:  # built with machine flags (CFLAGS=-march=...) elsewhere: running it would crash
         return None, (
             f"it was compiled for {', '.join(missing)}, which this CPU lacks; reinstall on this "
-            "machine, or with PIEST_KERNEL_NATIVE=0 for a portable build"
+            "machine, or without -march/-m flags in CFLAGS"
         )
-    return ext, ""
+    return portable, ""
+
+
+def isa() -> tuple[str, ...] | None:
+    """The instruction-set extensions of the kernel in use (() for the portable build), or None.
+
+    **Returns:** `("avx2", "fma")` when the AVX2 build runs, `()` for the portable build (the
+    target's baseline: SSE2 on x86-64), None when no kernel is available.
+    """
+    return None if _ext is None else tuple(_ext.isa())
 
 
 _ext, _IMPORT_ERROR = _load()

@@ -7,15 +7,16 @@
 //
 // The fused PI output y_t = sum_j w_j x_{t,j} is summed in a fixed order (lane-wise partial sums
 // over the vectors of a chunk of plays, then a tree over the lanes, then chunk after chunk), so a
-// build gives the same bits on every call. With AVX the lane sums of W consecutive steps are taken
-// together by a transpose of horizontal adds instead of one scalar tree per step.
+// build gives the same bits on every call. On x86 the lane sums of W consecutive steps are taken
+// together by a transpose (horizontal adds with AVX, unpacks with SSE2) instead of one scalar tree
+// per step.
 //
 // Backward pass. Each step of the differentiated forward pass records one bit per play: whether a
 // bound moved the state (see CodeBytes for why the direction need not be stored). At a tie (the old
 // state equal to a bound) the step counts as held. The adjoint is a reverse recurrence: nu_j
 // accumulates the output cotangents of play j over the current run of held steps; at an active
 // step it flows to u_t (and with sign +1 on the upper, -1 on the lower bound to r_j) and resets;
-// what is left at t = 0 flows to the initial state. With AVX it runs in blocks of W steps: first the
+// what is left at t = 0 flows to the initial state. On x86 it runs in blocks of W steps: first the
 // recurrence over the block (which gives du), then the block's terms of the threshold and weight
 // sums, so that neither loop needs more vector registers than there are.
 //
@@ -56,23 +57,29 @@ namespace {
 constexpr int kChunk = 8;
 constexpr int kChunkBwd = 4;
 
-// Explicit SIMD through GCC/Clang vector extensions: 32-byte vectors (two SSE registers on
-// machines without AVX).
+// Explicit SIMD through GCC/Clang vector extensions, as wide as the target's registers: 32 bytes
+// with AVX, 16 otherwise (SSE2, which every x86-64 CPU has, or NEON). Wider vectors on a target
+// without the registers would be split into pairs and passed through memory between functions.
+#if defined(__AVX__)
+constexpr int kVecBytes = 32;
+#else
+constexpr int kVecBytes = 16;
+#endif
 template <typename T>
 struct Vec;
 template <>
 struct Vec<float> {
-  typedef float type __attribute__((vector_size(32)));
-  typedef int32_t mask __attribute__((vector_size(32)));
+  typedef float type __attribute__((vector_size(kVecBytes)));
+  typedef int32_t mask __attribute__((vector_size(kVecBytes)));
   typedef int32_t lane;
-  static constexpr int kWidth = 8;
+  static constexpr int kWidth = kVecBytes / 4;
 };
 template <>
 struct Vec<double> {
-  typedef double type __attribute__((vector_size(32)));
-  typedef int64_t mask __attribute__((vector_size(32)));
+  typedef double type __attribute__((vector_size(kVecBytes)));
+  typedef int64_t mask __attribute__((vector_size(kVecBytes)));
   typedef int64_t lane;
-  static constexpr int kWidth = 4;
+  static constexpr int kWidth = kVecBytes / 8;
 };
 
 // Play lanes are padded to a multiple of the vector width.
@@ -131,6 +138,12 @@ inline uint8_t ToBits(typename Vec<T>::mask m) {
     return static_cast<uint8_t>(_mm256_movemask_ps(reinterpret_cast<__m256>(m)));
   } else {
     return static_cast<uint8_t>(_mm256_movemask_pd(reinterpret_cast<__m256d>(m)));
+  }
+#elif defined(__SSE2__)
+  if constexpr (sizeof(T) == 4) {
+    return static_cast<uint8_t>(_mm_movemask_ps(reinterpret_cast<__m128>(m)));
+  } else {
+    return static_cast<uint8_t>(_mm_movemask_pd(reinterpret_cast<__m128d>(m)));
   }
 #else
   uint8_t bits = 0;
@@ -197,11 +210,32 @@ inline Vec<double>::type BlockSum(const Vec<double>::type* acc) {
                                   _mm256_permute2f128_pd(t0, t1, 0x31));
   return reinterpret_cast<Vec<double>::type>(s);
 }
+#elif defined(__SSE2__)
+constexpr bool kBlockSums = true;
+
+// The same sums with SSE2 alone (no horizontal adds): a 4 x 4 transpose by unpacks, then the tree.
+inline Vec<float>::type BlockSum(const Vec<float>::type* acc) {
+  __m128 a[4];
+  std::memcpy(a, acc, sizeof(a));
+  const __m128 t0 = _mm_unpacklo_ps(a[0], a[1]), t1 = _mm_unpackhi_ps(a[0], a[1]);
+  const __m128 t2 = _mm_unpacklo_ps(a[2], a[3]), t3 = _mm_unpackhi_ps(a[2], a[3]);
+  // c_i holds lane i of every step; the sums keep HSum's tree (s0 + s1) + (s2 + s3).
+  const __m128 c0 = _mm_movelh_ps(t0, t2), c1 = _mm_movehl_ps(t2, t0);
+  const __m128 c2 = _mm_movelh_ps(t1, t3), c3 = _mm_movehl_ps(t3, t1);
+  const __m128 s = _mm_add_ps(_mm_add_ps(c0, c1), _mm_add_ps(c2, c3));
+  return reinterpret_cast<Vec<float>::type>(s);
+}
+inline Vec<double>::type BlockSum(const Vec<double>::type* acc) {
+  __m128d a[2];
+  std::memcpy(a, acc, sizeof(a));
+  const __m128d s = _mm_add_pd(_mm_unpacklo_pd(a[0], a[1]), _mm_unpackhi_pd(a[0], a[1]));
+  return reinterpret_cast<Vec<double>::type>(s);
+}
 #else
 constexpr bool kBlockSums = false;
 template <typename V>
 inline V BlockSum(const V* acc) {
-  return acc[0];  // not called: without AVX each step is summed on its own
+  return acc[0];  // not called: without x86 vectors each step is summed on its own
 }
 #endif
 
@@ -863,6 +897,22 @@ PyObject* Isa(PyObject*, PyObject*) {
 #endif
 }
 
+// Whether this CPU (and the OS, which must save the wide registers) supports an extension, from
+// CPUID where the compiler offers it; the binding asks the portable module before it loads the AVX2
+// one. Elsewhere nothing is claimed.
+PyObject* CpuHas(PyObject*, PyObject* args) {
+  const char* name = nullptr;
+  if (!PyArg_ParseTuple(args, "s", &name)) return nullptr;
+  long has = 0;
+#if (defined(__x86_64__) || defined(__i386__)) && (defined(__GNUC__) || defined(__clang__))
+  __builtin_cpu_init();
+  if (std::strcmp(name, "avx2") == 0) has = __builtin_cpu_supports("avx2");
+  else if (std::strcmp(name, "fma") == 0) has = __builtin_cpu_supports("fma");
+  else if (std::strcmp(name, "avx") == 0) has = __builtin_cpu_supports("avx");
+#endif
+  return PyBool_FromLong(has != 0);
+}
+
 // The jaxlib whose FFI headers the kernels were compiled against (setup.py defines it): the
 // binding refuses the kernels under another jaxlib, whose runtime may not match those headers.
 #ifndef PIEST_JAXLIB_VERSION
@@ -874,13 +924,25 @@ PyMethodDef kMethods[] = {
     {"registrations", Registrations, METH_NOARGS, "FFI handler capsules by target name."},
     {"code_bytes", CodeBytes_, METH_VARARGS, "Bytes of branch codes per step: (n, itemsize)."},
     {"isa", Isa, METH_NOARGS, "The instruction-set extensions the kernels need."},
+    {"cpu_has", CpuHas, METH_VARARGS, "Whether this CPU supports an extension (avx, avx2, fma)."},
     {"built_with", BuiltWith, METH_NOARGS, "The jaxlib version the kernels were compiled against."},
     {nullptr, nullptr, 0, nullptr},
 };
 
-PyModuleDef kModule = {PyModuleDef_HEAD_INIT, "_play_kernel", "CPU play-bank kernels.", -1,
+// One source, two extension modules (setup.py): _play_kernel, built for the baseline of the target
+// (SSE2 on x86-64), and _play_kernel_avx2, built with AVX2 and FMA; the binding loads the second
+// where the CPU has those instructions and the first elsewhere.
+#ifndef PIEST_MODULE
+#define PIEST_MODULE _play_kernel
+#endif
+#define PIEST_STR_(x) #x
+#define PIEST_STR(x) PIEST_STR_(x)
+#define PIEST_INIT_(x) PyInit_##x
+#define PIEST_INIT(x) PIEST_INIT_(x)
+
+PyModuleDef kModule = {PyModuleDef_HEAD_INIT, PIEST_STR(PIEST_MODULE), "CPU play-bank kernels.", -1,
                        kMethods};
 
 }  // namespace
 
-PyMODINIT_FUNC PyInit__play_kernel(void) { return PyModule_Create(&kModule); }
+PyMODINIT_FUNC PIEST_INIT(PIEST_MODULE)(void) { return PyModule_Create(&kModule); }
