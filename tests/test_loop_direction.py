@@ -3,9 +3,10 @@
 A PI operator with non-negative weights runs its loop counterclockwise; its inverse runs it
 clockwise, which non-negative weights can only fit with a straight line. `loop_direction` tells
 them apart from the signed area (against a plain loop over the samples), and `identify` / `piest
-fit` then fit a clockwise loop with signed weights and say so.
+fit` then fit a clockwise loop with signed weights and say so, as `diagnose` does with its models.
 """
 
+import dataclasses
 import json
 
 import jax.numpy as jnp
@@ -15,6 +16,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import piest_jax as pj
+from piest_jax._diagnosis import model
+from piest_jax._diagnosis.scaling import prepared, scaling_of
 
 DT = 0.01
 T = 1500
@@ -119,8 +122,26 @@ def test_piest_fit_says_a_loop_runs_clockwise(clockwise_record, tmp_path, capsys
     assert report["rmse"] < 0.015
 
 
+def test_diagnose_fits_a_clockwise_loop_with_signed_play_weights(clockwise_record):
+    # The inverse of a PI is a PI with signed weights: the diagnosis's plain model reaches the
+    # noise (0.01) with them, and nothing is left for an effect to explain.
+    d = pj.diagnose(clockwise_record)
+    assert d.loop.direction == "clockwise"
+    assert d.effects == [], d.candidates
+    assert d.baseline_rmse < 0.015 and d.final_rmse < 0.015
+    # The operator itself runs counterclockwise: its diagnosis keeps the non-negative plays of
+    # the physical model, and fitting the inverse's record with them leaves a line's error.
+    rec = clockwise_record
+    forward = pj.Record.from_arrays(rec.t, rec.u, np.asarray(_operator()(jnp.asarray(rec.u))), source="pi")
+    assert not scaling_of(forward).signed_plays and scaling_of(rec).signed_plays
+    sc = dataclasses.replace(scaling_of(rec), signed_plays=False)
+    p = prepared(rec, sc)
+    f = model.fit(p, {})
+    assert np.all(f.w[: model.N_PLAYS] >= 0)
+    assert np.sqrt(np.mean((f.A @ f.w - p.y) ** 2)) * sc.y_half > 4 * d.baseline_rmse
+
+
 def test_piest_diagnose_says_a_loop_runs_clockwise(clockwise_record, tmp_path, capsys):
-    # The diagnosis's plays take non-negative weights: it says so rather than explain a line.
     rec = clockwise_record
     data = tmp_path / "inverse.csv"
     np.savetxt(data, np.column_stack([rec.t, rec.u, rec.y]), delimiter=",", header="t,u,y", comments="")
@@ -129,7 +150,8 @@ def test_piest_diagnose_says_a_loop_runs_clockwise(clockwise_record, tmp_path, c
     code = pj.run_cli([*argv, "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
     assert code == 0, err
-    assert "note: the loop runs clockwise" in err and "non-negative weights cannot shape it" in err
+    assert "note: the loop runs clockwise" in err and "fitted with signed weights" in err
     report = json.loads((out / "report.json").read_text())
     assert report["loop"]["direction"] == "clockwise" and report["loop"]["score"] > 20
+    assert report["baseline_rmse"] < 0.015, report["baseline_rmse"]
     assert "**The loop runs clockwise**" in (out / "report.md").read_text()

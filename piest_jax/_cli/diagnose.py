@@ -10,7 +10,8 @@ from ._common import CLIError, add_output_options, add_record_options, note_loop
 NAME = "diagnose"
 DESCRIPTION = """\
 Fit a plain PI model (16 plays on a threshold grid, positive weights, output offset, relaxed
-initial states) to DATA.csv (columns t, u, y), locate where the residual is structured, then try
+initial states; signed weights when the loop runs clockwise, as an inverse PI's does) to
+DATA.csv (columns t, u, y), locate where the residual is structured, then try
 each effect (listed below) and name it only when it wins clearly on held-out blocks against the
 noise floor; repeat on what remains. Both the plain and the final model are then refined jointly (weights and
 every effect's parameters) by optimistix least squares (--solver). A progress bar over the
@@ -105,7 +106,7 @@ def run(args) -> int:
         solver=None if args.solver == "none" else args.solver,
         quiet=args.quiet or args.json,
     )
-    note_loop(args, diagnosis.loop, True)
+    note_loop(args, diagnosis.loop, False)
     rep = _report(diagnosis, args)
     fig = diagnosis_figure(diagnosis)
     written = [_io.write_json(out / "report.json", rep)]
@@ -141,9 +142,8 @@ def _markdown(d, data):
         *(
             [
                 f"**The loop runs clockwise** (the output leads the input, as an inverse PI does; score "
-                f"{d.loop.score:.0f}). The plain PI model's plays take non-negative weights, which shape "
-                "counterclockwise loops only: here it is close to a straight line, and the effects named "
-                "explain that rather than the device. `piest fit` fits such a loop with signed weights.",
+                f"{d.loop.score:.0f}). Non-negative play weights shape counterclockwise loops only, so "
+                "every model here, the plain PI one included, takes signed play weights, as `piest fit` does.",
                 "",
             ]
             if d.loop is not None and d.loop.direction == "clockwise"

@@ -107,11 +107,10 @@ class Diagnosis(Mapping):
       standard errors (`values`, `std_errors`, `undetermined`, `method`, `samples`: the
       Newey-West estimate from the refined model's Jacobian, as `fit_pi` gives its own); None
       when no effect is named.
-    - `loop`: which way the record's loop runs ([`LoopDirection`][piest_jax.LoopDirection]). The
-      diagnosis's plays take non-negative weights, which shape counterclockwise loops only: on a
-      clockwise one (the output leads the input, as an inverse PI does) its plain model is
-      close to a straight line and the effects it names explain that, not the device; `piest
-      fit` fits such a loop with signed weights.
+    - `loop`: which way the record's loop runs ([`LoopDirection`][piest_jax.LoopDirection]).
+      Non-negative play weights shape counterclockwise loops only; on a clockwise one (the output
+      leads the input, as an inverse PI does) every model of the diagnosis, the plain one
+      included, takes signed play weights, as `piest fit` does.
 
     **Properties:** `transferable_effects` (functions of the input, which carry over to another
     record), `record_specific_effects` (tied to this record: its unrecorded past, its drift),

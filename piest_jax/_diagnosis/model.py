@@ -94,14 +94,15 @@ def drive_of(p, cfg, v0, w_v, norm):
     return drive
 
 
-def positive_mask(cfg, n_cols):
+def positive_mask(cfg, n_cols, signed=False):
     """Which columns have a coefficient >= 0: the plays' weights and positive output terms.
 
-    Positive play weights are the physical PI model (every cumulative weight positive, hence an
-    invertible operator); an effect marks its own terms positive (creep's modes).
+    Positive play weights are the physical PI model of a counterclockwise loop (every cumulative
+    weight positive, hence an invertible operator); `signed` frees them, for a loop that runs
+    clockwise (`Prepared.signed`). An effect marks its own terms positive (creep's modes).
     """
     pos = np.zeros(n_cols, bool)
-    pos[:N_PLAYS] = True
+    pos[:N_PLAYS] = not signed
     if n_cols > N_PLAYS + 1:
         for name, sl in output_slices(cfg).items():
             pos[sl] = EFFECT[name].positive
@@ -138,7 +139,7 @@ def _scale(A):
 
 
 def lstsq(A, y, pos=None):
-    """Least squares with the play weights (the first N_PLAYS columns, or `pos`) kept >= 0."""
+    """Least squares with the coefficients in `pos` (default: the first N_PLAYS columns) kept >= 0."""
     pos = positive_mask({}, A.shape[1]) if pos is None else pos
     return _solve(A.T @ A, A.T @ y, _scale(A), pos)
 
@@ -184,7 +185,7 @@ def fit(p, cfg, *, X=None) -> Fit:
     """
     X = linear_part(p, cfg) if X is None else X
     px = X.shape[1]
-    w = w_v = lstsq(X, p.y)
+    w = w_v = lstsq(X, p.y, positive_mask({}, px, p.signed))
     v = X @ w
     norm = (0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-12))
     A, target = X, p.y
@@ -193,7 +194,7 @@ def fit(p, cfg, *, X=None) -> Fit:
         bilinear = any(EFFECT[n].bilinear for n in slices)
         iters = max(EFFECT[n].fit_iterations for n in slices)
         n_out = sum(s.stop - s.start for s in slices.values())
-        pos = positive_mask(cfg, px + n_out)
+        pos = positive_mask(cfg, px + n_out, p.signed)
         best = None
         for i in range(iters):
             w_v = w
@@ -260,7 +261,7 @@ def cv_mse(p, A, cfg=None, target=None):
     """
     y = p.y if target is None else target
     scale = _scale(A)
-    pos = positive_mask(cfg or {}, A.shape[1])
+    pos = positive_mask(cfg or {}, A.shape[1], p.signed)
     parts = [(p.folds == k) for k in np.unique(p.folds)]
     grams = [(A[m].T @ A[m], A[m].T @ y[m]) for m in parts]
     G, b = sum(g for g, _ in grams), sum(v for _, v in grams)

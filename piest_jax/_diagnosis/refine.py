@@ -11,7 +11,8 @@ The model is the exact one of `model` (each effect's JAX hooks state the same eq
 NumPy ones, normalised units): the creep follows the current output, not the previous fit's.
 
 Positive quantities are carried as logarithms (times, gains) or through a softplus (play weights
-and creep coefficients, which `model` keeps >= 0), so every step stays physical.
+and creep coefficients, which `model` keeps >= 0), so every step stays physical; the play weights
+of a clockwise loop (`Prepared.signed`) are free.
 """
 
 from typing import NamedTuple
@@ -47,14 +48,21 @@ def _transferable(st: Structure) -> Structure:
     return tuple((n, s) for n, s in st if not EFFECT[n].record_specific)
 
 
-def initial_params(cfg, w) -> dict:
-    """The parameters of a configuration and its `model.fit` coefficients `w` (normalised units)."""
+def initial_params(cfg, w, signed: bool = False) -> dict:
+    """The parameters of a configuration and its `model.fit` coefficients `w` (normalised units).
+
+    The play weights are `weights` (through a softplus, >= 0) or, with `signed` (a clockwise
+    loop, `Prepared.signed`), `signed_weights` as they are; the key fixes the model's form.
+    """
     w = np.asarray(w, float)
     n = N_PLAYS
-    # A weight the sign-constrained fit left at exactly 0 would sit where the softplus is flat
-    # and never move; starting it at a thousandth of the largest lets the solver use it.
-    floor = 1e-3 * max(float(np.max(np.abs(w[:n]))), 1e-300)
-    theta = {"weights": _softplus_inv(np.maximum(w[:n], floor)), "offset": np.asarray(w[n])}
+    if signed:
+        theta = {"signed_weights": w[:n], "offset": np.asarray(w[n])}
+    else:
+        # A weight the sign-constrained fit left at exactly 0 would sit where the softplus is
+        # flat and never move; starting it at a thousandth of the largest lets the solver use it.
+        floor = 1e-3 * max(float(np.max(np.abs(w[:n]))), 1e-300)
+        theta = {"weights": _softplus_inv(np.maximum(w[:n], floor)), "offset": np.asarray(w[n])}
     slices = output_slices(cfg)
     for e in chain(cfg):
         sl = slices.get(e.name)
@@ -66,11 +74,18 @@ def to_config(cfg, theta) -> tuple[dict, np.ndarray]:
     """The configuration and `model` coefficient vector that a parameter set stands for."""
     t = {k: np.asarray(v, float) for k, v in theta.items()}
     cfg = dict(cfg)
-    w = [np.asarray(jax.nn.softplus(t["weights"]), float), [t["offset"]]]
+    w = [np.asarray(_play_weights(t), float), [t["offset"]]]
     for e in chain(cfg):
         cfg[e.name], coef = e.from_theta(cfg[e.name], t)
         w.extend(coef)
     return cfg, np.concatenate([np.atleast_1d(np.asarray(v, float)) for v in w])
+
+
+def _play_weights(theta):
+    """The play weights of a parameter set: signed, or >= 0 through the softplus."""
+    if "signed_weights" in theta:
+        return theta["signed_weights"]
+    return jax.nn.softplus(theta["weights"])
 
 
 def _hysteresis(theta, st: Structure, u, rho):
@@ -86,7 +101,7 @@ def _hysteresis(theta, st: Structure, u, rho):
     x0 = jnp.full(r0.shape, g[0])
     for e, s in effects:
         x0 = e.jax_initial_states(theta, s, g[0], x0)
-    w = jax.nn.softplus(theta["weights"])
+    w = _play_weights(theta)
     # The operator's own recurrence (the scan: thresholds that vary over time do not take the
     # kernel, and the solver differentiates through it).
     return play(g, r, x0, method="scan") @ w + theta["offset"]
@@ -176,7 +191,7 @@ def refine(
     """
     check_solver(solver)
     st = structure(cfg)
-    theta0 = initial_params(cfg, w)
+    theta0 = initial_params(cfg, w, p.signed)
     data, y, mask = data_of(p, norm)
     theta, result, steps, loss0, loss = _solve(
         theta0, st, data, y, mask, solver=solver, max_steps=max_steps, rtol=rtol, atol=atol

@@ -11,6 +11,7 @@ import numpy as np
 from scipy import signal as _signal
 
 from .._data.record import DataError, Record
+from .._identification.loop import loop_direction
 from .basis import N_PLAYS, THRESHOLDS, plays, turning_samples
 
 MIN_SAMPLES = 200
@@ -100,7 +101,7 @@ class Prepared:
     so that the play columns equal the full-rate plays at the kept samples.
     """
 
-    def __init__(self, u, y, t, rate_scale, period, folds=None, *, play_u=None, play_rho=None, keep=None):
+    def __init__(self, u, y, t, rate_scale, period, folds=None, *, play_u=None, play_rho=None, keep=None, signed=False):
         self.u, self.y, self.t = (np.asarray(a, float) for a in (u, y, t))
         self.dt = float(np.median(np.diff(self.t)))
         self.s = (self.t - self.t[0]) / max(self.t[-1] - self.t[0], 1e-300)
@@ -110,6 +111,8 @@ class Prepared:
         self.play_u = self.u if play_u is None else np.asarray(play_u, float)
         self.play_rho = self.rho if play_rho is None else np.asarray(play_rho, float)
         self.keep = keep
+        # The play weights are signed (`Scaling.signed_plays`), not kept >= 0.
+        self.signed = bool(signed)
         self._plain = None
 
     def plain_plays(self):
@@ -131,6 +134,9 @@ class Scaling:
     omega_ref: float
     period: float
     delay_unit: float
+    # The record's loop runs clockwise (the output leads the input, as an inverse PI's does): the
+    # plays' weights are then signed, since non-negative ones shape counterclockwise loops only.
+    signed_plays: bool = False
 
 
 def check_record(rec: Record) -> None:
@@ -201,6 +207,7 @@ def scaling_of(rec: Record) -> Scaling:
     rate_scale = float(np.percentile(rate, 90)) or float(rate.max())
     duration = float(rec.t[-1] - rec.t[0])
     f_dom = max(_reversals((rec.u - rec.u.min()) / np.ptp(rec.u)) / 2, 1.0) / duration
+    clockwise = loop_direction(rec.u, rec.y).direction == "clockwise"
     return Scaling(
         float(u_mid),
         float(u_half),
@@ -210,6 +217,7 @@ def scaling_of(rec: Record) -> Scaling:
         float(2 * np.pi * 10 * f_dom),
         float(1 / f_dom),
         rec.dt,
+        clockwise,
     )
 
 
@@ -231,9 +239,11 @@ def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) ->
         blocks = np.minimum((np.arange(len(u)) * N_BLOCKS) // len(u), N_BLOCKS - 1)
         f = blocks % N_FOLDS
     if step == 1:
-        return Prepared(u, y, t, sc.rate_scale, sc.period, f)
+        return Prepared(u, y, t, sc.rate_scale, sc.period, f, signed=sc.signed_plays)
     # The plays see every turning point of the full-rate input, not only the kept samples: a
     # sub-sampled sine's peaks fall between samples, and plays run on it would miss them.
     index, keep = turning_samples(u_full, step)
     rho = np.abs(np.gradient(u_full, rec.t))[index] / sc.rate_scale
-    return Prepared(u, y, t, sc.rate_scale, sc.period, f, play_u=u_full[index], play_rho=rho, keep=keep)
+    return Prepared(
+        u, y, t, sc.rate_scale, sc.period, f, play_u=u_full[index], play_rho=rho, keep=keep, signed=sc.signed_plays
+    )

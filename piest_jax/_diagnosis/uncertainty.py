@@ -64,8 +64,10 @@ def _jacobian(flat, unravel, st, data, y):
     return jax.jacfwd(residuals)(flat), residuals(flat)
 
 
-def parameters(model_entry: dict):
+def parameters(model_entry: dict, signed: bool = False):
     """The joint model's parameters, structure and configuration for a search's model entry.
+
+    `signed`: the play weights are signed (a clockwise loop, `Prepared.signed`).
 
     **Returns:** `(theta, structure, cfg)`: the refined ones when the refinement was kept, else
     those of the kept variable-projection fit.
@@ -74,7 +76,7 @@ def parameters(model_entry: dict):
     if isinstance(refined, Refined):
         return refined.theta, refined.structure, refined.cfg
     cfg = model_entry["cfg"]
-    return initial_params(cfg, model_entry["coef"]), structure(cfg), cfg
+    return initial_params(cfg, model_entry["coef"], signed), structure(cfg), cfg
 
 
 def parameter_uncertainty(p, model_entry: dict, sc: Scaling, *, method: str = "newey-west") -> dict:
@@ -92,7 +94,7 @@ def parameter_uncertainty(p, model_entry: dict, sc: Scaling, *, method: str = "n
     `creep.time_constants_s[0]`, ..., `offset`), `undetermined` (names) and `samples` (the number
     of samples the Jacobian was taken on).
     """
-    theta, st, cfg = parameters(model_entry)
+    theta, st, cfg = parameters(model_entry, p.signed)
     data, y, _ = data_of(p, model_entry["norm"], pad=False)
     flat, unravel = jax.flatten_util.ravel_pytree({k: jnp.asarray(v) for k, v in theta.items()})
     J, e = (np.asarray(a) for a in _jacobian(flat, unravel, st, data, y))
