@@ -644,7 +644,7 @@ def test_an_unknown_kernel_isa_choice_is_named(monkeypatch):
 
 
 @needs_kernel
-def test_the_portable_build_equals_the_scan_in_a_fresh_process():
+def test_the_portable_build_equals_the_scan_in_a_fresh_process(tmp_path):
     # The portable module (16-byte vectors) through every entry point: the bank to the last bit,
     # the PI output to rounding, and both derivative modes against the scan, off the tie set.
     code = textwrap.dedent(
@@ -678,7 +678,10 @@ def test_the_portable_build_equals_the_scan_in_a_fresh_process():
         """
     )
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "PIEST_KERNEL_ISA": "portable"}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    # Started outside the source tree, so that an installed (not editable) package is the one
+    # imported, as in this process, rather than the tree's copy (`python -c` puts the working
+    # folder first on the path).
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok"
 
