@@ -233,6 +233,7 @@ def search(
     **Returns:** a dict with `effects` (named, in order), `pruned`, `rounds` (each candidate's
     held-out RMSE and score per round), `model_base` and `model_final` (configuration,
     weights and, with a `solver`, how the refinement went and which fit was kept), `scaling`,
+    `loop` (the record's `loop_direction`, which decides whether the plays' weights are signed),
     `noise_std` and the held-out RMSEs (in the data's units).
     """
     candidates = list(candidates)
@@ -240,7 +241,8 @@ def search(
     if solver is not None:
         check_solver(solver)
     check_record(rec)
-    sc = scaling_of(rec)
+    loop = loop_direction(rec.u, rec.y)
+    sc = scaling_of(rec, loop)
     step = int(math.ceil(rec.n_samples / SEARCH_SAMPLES))
     p = prepared(rec, sc, step=step, folds=True)
     floor = noise_std(rec.y) / sc.y_half
@@ -329,6 +331,7 @@ def search(
         heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
         heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half,
         uncertainty=uncertainty,
+        loop=loop,
         **models,
     )
 
@@ -508,7 +511,7 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnos
         baseline_prediction=pred_b,
         final_prediction=pred_f,
         validation=checked,
-        loop=loop_direction(rec.u, rec.y),
+        loop=s["loop"],
     )
 
 

@@ -194,10 +194,11 @@ def _turns(un, frac):
     return out
 
 
-def scaling_of(rec: Record) -> Scaling:
+def scaling_of(rec: Record, loop=None) -> Scaling:
     """The normalisation constants of an identification record.
 
-    **Arguments:** `rec`, the record.
+    **Arguments:** `rec`, the record; `loop`, its `loop_direction` when the caller has it
+    (otherwise computed here).
 
     **Returns:** a `Scaling`.
     """
@@ -207,7 +208,8 @@ def scaling_of(rec: Record) -> Scaling:
     rate_scale = float(np.percentile(rate, 90)) or float(rate.max())
     duration = float(rec.t[-1] - rec.t[0])
     f_dom = max(_reversals((rec.u - rec.u.min()) / np.ptp(rec.u)) / 2, 1.0) / duration
-    clockwise = loop_direction(rec.u, rec.y).direction == "clockwise"
+    loop = loop_direction(rec.u, rec.y) if loop is None else loop
+    clockwise = loop.direction == "clockwise"
     return Scaling(
         float(u_mid),
         float(u_half),
