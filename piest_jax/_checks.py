@@ -39,8 +39,22 @@ def prng_key(key, name: str = "key"):
     )
 
 
+def to_device(x) -> Array:
+    """A NumPy array as a JAX array of the same values (float64 becomes float32 where JAX runs
+    without 64-bit types, as `jnp.asarray` does), copied, not sharing the NumPy memory.
+
+    Not `jnp.asarray`: from jax 0.8 on it compiles a small program for every shape and dtype it
+    is given, a compilation (and about a megabyte kept) per record length and play count.
+    """
+    return jax.device_put(np.asarray(x), may_alias=False)
+
+
 def as_float_array(x, name: str) -> Array:
     """Convert to a floating JAX array, keeping float64 when it is enabled and given."""
+    if isinstance(x, np.ndarray):
+        if not np.issubdtype(x.dtype, np.floating):
+            x = x.astype(np.float64)
+        return to_device(x)
     arr = jnp.asarray(x)
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = arr.astype(jnp.result_type(float))

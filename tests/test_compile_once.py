@@ -72,3 +72,14 @@ def test_the_counter_sees_a_compile():
     with Compiles() as compiles:
         jax.jit(lambda x: jnp.sin(x) * 3.0 + 1.25)(jnp.arange(7.0))
     assert compiles.count >= 1
+
+
+def test_another_play_count_compiles_only_the_fit(records):
+    # On a record length already seen, a new play count compiles the fit's own programs (start
+    # grids, solve, the chosen start in the data's units, the covariance's Jacobian), not one
+    # program per small operation of the glue around them.
+    u, y = records[0].u, records[0].y
+    pj.fit_pi(u, y, 2, n_starts=2)
+    with Compiles() as c:
+        pj.fit_pi(u, y, 4, n_starts=2)
+    assert c.count <= 5

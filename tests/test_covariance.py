@@ -300,3 +300,24 @@ def test_long_records_give_the_dense_estimate_in_bounded_memory(method, states, 
     np.testing.assert_array_less(np.abs(got[0] - want[0]), rtol * scale + 1e-300)
     np.testing.assert_allclose(got[1], want[1], rtol=rtol)
     assert not got[2].any() and not want[2].any()
+
+
+@pytest.mark.parametrize("block", [1, 7, 64, 1000])
+def test_blocked_lag_sums_give_the_whole_records_block_length(block):
+    # The long-record pass sums e² and e_t e_(t-1) a block at a time, pairing consecutive used
+    # samples across blocks and held-out gaps, as `bandwidth` does on the selected residuals.
+    rng = np.random.default_rng(3)
+    T = 500
+    y = np.cumsum(rng.standard_normal(T)) * 0.1  # correlated, so rho and the block length matter
+    pred = 0.05 * rng.standard_normal(T)
+    mask = rng.uniform(0.5, 1.5, T)
+    mask[rng.uniform(size=T) < 0.3] = 0.0  # holes
+    mask[:20] = 0.0
+    used = mask > 0
+    e = (y - pred)[used] * mask[used]
+    den, cross, n = _cov._lag_sums(y, pred, mask, block)
+    assert n == e.size
+    assert den == pytest.approx(float(e @ e), rel=1e-12)
+    assert cross == pytest.approx(float(e[1:] @ e[:-1]), rel=1e-12)
+    assert _cov.bandwidth_of(den, cross, n) == _cov.bandwidth(e)
+    assert _cov.bandwidth(e) > 1

@@ -37,6 +37,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array
 
+from .. import _checks
 from .fit_data import Scales
 from .time_constants import LAG_RATIO, lag_log_tau
 
@@ -201,17 +202,16 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     """
     p = theta.shape[0]
     T = u.shape[0]
-    data = (
-        chunked(u, u[-1], chunk),
-        chunked(y, 0.0, chunk),
-        chunked(mask, 0.0, chunk),
-        chunked(jnp.arange(T), T, chunk),
-    )
+    data = (chunked(u, u[-1], chunk), chunked(y, 0.0, chunk), chunked(mask, 0.0, chunk))
+    # The samples' indices come from the chunk's number: a (T,) index array would be one more
+    # copy of the record's length (80 MB at 10^7 samples).
+    numbers = jnp.arange(data[0].shape[0])
     s0, ds0, rows = chunk_rows(run, layout, theta, s, x0, z0, dt)
 
     def body(carry, ch):
         states, dstates, tail, R, blocks, ete = carry
-        uu, yy, mm, ii = ch
+        (uu, yy, mm), k = ch
+        ii = k * chunk + jnp.arange(chunk)
         pred, after, J, dafter = rows(states, dstates, uu)
         J = J * mm[None, :]
         e = (yy - pred) * mm
@@ -221,7 +221,7 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
 
     zero = jnp.zeros((p, p), theta.dtype)
     init = (s0, ds0, jnp.zeros((window, p), theta.dtype), zero, zero, jnp.zeros((), theta.dtype))
-    (_, _, _, R, blocks, ete), _ = lax.scan(body, init, data)
+    (_, _, _, R, blocks, ete), _ = lax.scan(body, init, (data, numbers))
     return R, blocks, ete
 
 
@@ -243,9 +243,12 @@ def block_sums(tail, g, ii, T: int):
 def bandwidth(e) -> int:
     """Andrews' AR(1) plug-in block length for the Bartlett kernel, 1 <= b <= N/5."""
     e = np.asarray(e, np.float64)
-    N = e.shape[0]
-    den = float(e @ e)
-    rho = float(e[1:] @ e[:-1]) / den if den > 0 else 0.0
+    return bandwidth_of(float(e @ e), float(e[1:] @ e[:-1]), e.shape[0])
+
+
+def bandwidth_of(den: float, cross: float, N: int) -> int:
+    """[`bandwidth`][] from the residuals' sums Σ e_t², Σ e_t e_(t-1) and their number `N`."""
+    rho = cross / den if den > 0 else 0.0
     rho = min(max(rho, -0.999), 0.999)
     alpha = 4 * rho**2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
     b = int(np.ceil(1.1447 * (alpha * N) ** (1 / 3)))
@@ -455,13 +458,13 @@ def fit_fields(
     undetermined = deficient | ~(se < RELATIVE_LIMIT * scale)
     return dict(
         parameter_names=names,
-        parameter_values=jnp.asarray(values),
-        covariance=jnp.asarray(cov),
-        std_errors=jnp.asarray(se),
-        undetermined=jnp.asarray(undetermined),
+        parameter_values=_checks.to_device(values),
+        covariance=_checks.to_device(cov),
+        std_errors=_checks.to_device(se),
+        undetermined=_checks.to_device(undetermined),
         covariance_method=method,
-        residual_std=jnp.asarray(info["sigma"], theta.dtype),
-        held=jnp.asarray(held),
+        residual_std=_checks.to_device(np.asarray(info["sigma"], theta.dtype)),
+        held=_checks.to_device(held),
     )
 
 
@@ -497,7 +500,7 @@ def on_bounds(names, gaps):
 
 def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt, index, eps, chunk, T):
     """`estimate`'s covariance from [`moments`][], on a record too long to hold J."""
-    theta = jnp.asarray(theta)
+    theta = _checks.to_device(theta)
     m = jnp.asarray(mask, theta.dtype)
     y = jnp.asarray(yn) * s.y_half + s.y_mid
     used = np.asarray(mask) > 0
@@ -505,13 +508,33 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
     if method == "newey-west":
         # The block length comes from the residuals' lag-1 correlation: one pass without J.
         pred = s.y_mid + s.y_half * run(jnp.asarray(un), *_natural(layout, theta, s, x0, z0, dt))
-        e = (np.asarray(y) - np.asarray(pred))[used] * np.asarray(mask)[used]
-        window = bandwidth(e)
+        window = bandwidth_of(*_lag_sums(np.asarray(y), np.asarray(pred), np.asarray(mask)))
+        del pred
     R, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
     # J's selected columns mapped by T are Q (R[:, index] T): the same singular values.
     factor = np.asarray(R, np.float64)[:, index] @ T
     blocks = T.T @ np.asarray(blocks, np.float64)[np.ix_(index, index)] @ T
     return estimate_moments(factor, blocks, float(ete), int(used.sum()), method=method, window=window, eps=eps)
+
+
+def _lag_sums(y, pred, mask, block: int = 2**20):
+    """Σ e², Σ e_t e_(t-1) and N of the weighted residuals e = (y - pred) mask on the used
+    samples (mask > 0), consecutive used samples paired as [`bandwidth`][] pairs them, a block
+    at a time: the whole (T,) residual and its selections would be several copies of the
+    record's length."""
+    den = cross = 0.0
+    n = 0
+    last = None
+    for i in range(0, y.shape[0], block):
+        mm = mask[i : i + block]
+        keep = mm > 0
+        e = ((y[i : i + block] - pred[i : i + block])[keep] * mm[keep]).astype(np.float64)
+        if e.size == 0:
+            continue
+        den += float(e @ e)
+        cross += float(e[1:] @ e[:-1]) + (0.0 if last is None else last * float(e[0]))
+        last, n = float(e[-1]), n + e.size
+    return den, cross, n
 
 
 def flagged_names(names, flags) -> tuple:

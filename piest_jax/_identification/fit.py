@@ -32,6 +32,7 @@ solution (`covariance.py`), and a parameter the record does not determine (the J
 a standard error beyond half its scale) is named in `undetermined_names` and flags its play.
 """
 
+import functools
 from typing import Literal
 
 import equinox as eqx
@@ -286,6 +287,10 @@ def _grid(n, n_starts, dtype, key):
         g = g / g[:, -1:] * tops[:, None] * (n - 1) / n
         grids = grids.at[1:].set(g[1:])
     return grids
+
+
+# `_grid` as one compiled program per shape: eagerly its dozen operations would each compile one.
+_start_grids = jax.jit(_grid, static_argnums=(0, 1, 2))
 
 
 def _initial_params(
@@ -552,7 +557,7 @@ def fit_pi(
     )
     T = jnp.shape(u)[0]
     if r_start is None:
-        r0s = _grid(n_plays, n_starts, un.dtype, key)
+        r0s = _start_grids(n_plays, n_starts, un.dtype, key)
     else:
         r0s = r_start[None, :]
     active = None
@@ -642,22 +647,17 @@ def fit_pi(
             batch=min(int(starts_at_once), r0s.shape[0]),
             **common,
         )
-    best = int(jnp.argmin(loss))
-    if not bool(jnp.isfinite(loss[best])):
+    loss_np = np.asarray(loss)
+    best = int(np.argmin(loss_np))
+    if not np.isfinite(loss_np[best]):
         raise ValueError("every start of the fit produced non-finite residuals")
-    p = jax.tree.map(lambda a: a[best], params)
-    r_all, w_all = _constrained(p, positive_weights, r_bound, active)
-    thresholds, weights, offset, states = _user_units(p, r_all, w_all, x0, s, n_plays)
+    p, r_all, w_all, (thresholds, weights, offset, states), lags, (rmse, start_rmse, result, n_steps) = _chosen(
+        params, loss, results, steps, best, r_bound, active, x0, s, lag_base, dt, positive_weights, n_plays, n_lags
+    )
     creep = None
     if n_lags > 0:
-        # The lags' share of u_mid moves to the offset as the plays' does (`_user_units`).
-        cw = _lag_weights(p)[:n_lags] * s.y_half / s.u_half
-        offset = offset - s.u_mid * jnp.sum(cw)
-        tau = jnp.exp(lag_log_tau(p["lag_theta"], lag_base)[:n_lags]) * dt
-        zs = None
-        if fit_initial_states:
-            zs = s.u_mid + s.u_half * p["lag_states"][:n_lags]
-        creep = Creep(tau, cw, dt, zs)
+        tau, cw, zs = lags
+        creep = Creep(tau, cw, dt, zs if fit_initial_states else None)
     fields = {}
     if covariance is not None:
         fields = _cov.fit_fields(
@@ -681,24 +681,54 @@ def fit_pi(
         )
     if long_record:
         release_freed_memory()
-    unexcited_plays = thresholds >= s.u_half
-    flagged = unexcited_plays
+    flagged = np.asarray(thresholds) >= float(s.u_half)
     if fields:
-        flags = _cov.play_flags(fields["parameter_names"], fields["undetermined"], n_plays)
-        flagged = jnp.asarray(np.asarray(flagged) | flags)
+        flagged = flagged | _cov.play_flags(fields["parameter_names"], fields["undetermined"], n_plays)
     return PIFit(
         thresholds=thresholds,
         weights=weights,
         offset=offset,
         initial_states=states,
-        rmse=jnp.sqrt(loss[best]) * s.y_half,
-        result=jax.tree.map(lambda a: a[best], results),
-        flagged=flagged,
-        n_steps=steps[best],
-        start_rmse=jnp.sqrt(loss) * s.y_half,
+        rmse=rmse,
+        result=result,
+        flagged=_checks.to_device(flagged),
+        n_steps=n_steps,
+        start_rmse=start_rmse,
         creep=creep,
         **fields,
     )
+
+
+@functools.partial(jax.jit, static_argnums=(11, 12, 13))
+def _chosen(
+    params, loss, results, steps, best, r_bound, active, x0, s, lag_base, dt, positive_weights, n_plays, n_lags
+):
+    """The chosen start of `fit_pi` in the data's units, as one compiled program (eagerly, its
+    few dozen small operations would each compile one for every play and lag count).
+
+    **Returns:** `(p, r, w, (thresholds, weights, offset, states), lags, (rmse, start_rmse,
+    result, n_steps))`: the start's normalised parameters with their thresholds and weights, the
+    PI part as `_user_units` gives it, the lags' `(time constants, weights, states)` (None
+    without lags) and the fit's summary.
+    """
+    p = jax.tree.map(lambda a: a[best], params)
+    r, w = _constrained(p, positive_weights, r_bound, active)
+    thresholds, weights, offset, states = _user_units(p, r, w, x0, s, n_plays)
+    lags = None
+    if n_lags > 0:
+        # The lags' share of u_mid moves to the offset as the plays' does (`_user_units`).
+        cw = _lag_weights(p)[:n_lags] * s.y_half / s.u_half
+        offset = offset - s.u_mid * jnp.sum(cw)
+        tau = jnp.exp(lag_log_tau(p["lag_theta"], lag_base)[:n_lags]) * dt
+        zs = s.u_mid + s.u_half * p["lag_states"][:n_lags] if "lag_states" in p else None
+        lags = (tau, cw, zs)
+    summary = (
+        jnp.sqrt(loss[best]) * s.y_half,
+        jnp.sqrt(loss) * s.y_half,
+        jax.tree.map(lambda a: a[best], results),
+        steps[best],
+    )
+    return p, r, w, (thresholds, weights, offset, states), lags, summary
 
 
 def _check_lags(n_lags, pad_lags, dt) -> None:

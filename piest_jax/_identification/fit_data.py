@@ -71,22 +71,27 @@ def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2, extra=
         raise ValueError(f"the input has zero range (constant {u_lo:.6g}): it excites no play")
     y_lo, y_hi = float(y_np.min()), float(y_np.max())
     y_half = 0.5 * (y_hi - y_lo) if y_hi > y_lo else 1.0
-    s = Scales(
-        *(jnp.asarray(v, dtype) for v in (0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo), 0.5 * (y_lo + y_hi), y_half))
-    )
+    dtype = u_np.dtype
+    mid_u, half_u, mid_y = (dtype.type(v) for v in (0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo), 0.5 * (y_lo + y_hi)))
+    half_y = dtype.type(y_half)
+    # In NumPy, moved to the device once: eager JAX operations would each compile a program for
+    # every record length and play count.
+    s = Scales(*(_checks.to_device(v) for v in (mid_u, half_u, mid_y, half_y)))
     if thresholds0 is not None:
         r0 = np.asarray(thresholds0, dtype=np.float64)
         if r0.shape != (n_plays,) or r0[0] != 0 or np.any(np.diff(r0) <= 0):
             raise ValueError(f"`thresholds0` must be {n_plays} increasing thresholds starting at 0, got {r0}")
-        thresholds0 = jnp.asarray(r0 / float(s.u_half), dtype)
-    x0 = jnp.broadcast_to(u[0] if initial_states is None else jnp.asarray(initial_states, dtype), (n_plays,))
-    x0 = (x0 - s.u_mid) / s.u_half
-    un, yn = (u - s.u_mid) / s.u_half, (y - s.y_mid) / s.y_half
+        thresholds0 = _checks.to_device((r0 / float(half_u)).astype(dtype))
+    start = u_np[0] if initial_states is None else np.asarray(initial_states, dtype)
+    x0_np = (np.broadcast_to(start, (int(n_plays),)).astype(dtype) - mid_u) / half_u
+    un, yn = (u_np - mid_u) / half_u, (y_np - mid_y) / half_y
+    mask_np: np.ndarray = np.asarray(mask)
     # Records are padded to a few lengths so that nearby lengths share one compilation. Padding
     # repeats the last input, which moves no play, and its residuals are masked out.
     pad = pad_count(u.shape[0])
     if pad:
-        un = jnp.concatenate([un, jnp.full(pad, un[-1], dtype)])
-        yn = jnp.concatenate([yn, jnp.zeros(pad, dtype)])
-        mask = jnp.concatenate([mask, jnp.zeros(pad, dtype)])
+        un = np.concatenate([un, np.full(pad, un[-1], dtype)])
+        yn = np.concatenate([yn, np.zeros(pad, dtype)])
+        mask_np = np.concatenate([mask_np, np.zeros(pad, dtype)])
+    un, yn, mask, x0 = (_checks.to_device(a) for a in (un, yn, mask_np, x0_np))
     return un, yn, mask, s, x0, thresholds0

@@ -37,9 +37,9 @@ from .batches import map_in_batches
 from .fit import (
     Solver,
     _constrained,
-    _grid,
     _initial_params,
     _softplus_inv,
+    _start_grids,
     default_starts_at_once,
     run,
 )
@@ -214,7 +214,7 @@ def fit_gpi(
         if not float(max_threshold) > 0:
             raise ValueError(f"`max_threshold` must be positive, got {max_threshold}")
         r_bound = jnp.asarray(float(max_threshold), un.dtype) / s.u_half
-    r0s = _grid(n_plays, n_starts, un.dtype, key)
+    r0s = _start_grids(n_plays, n_starts, un.dtype, key)
     batch = default_starts_at_once(un.shape[0]) if starts_at_once is None else int(starts_at_once)
     params, loss, results, steps = _solve_starts(
         r0s,
