@@ -11,6 +11,7 @@ released with the `jax.jit` object that held it, and compiled again if its struc
 """
 
 import collections
+import functools
 from collections.abc import Callable
 
 import equinox as eqx
@@ -61,3 +62,15 @@ class BoundedJit:
     def kept(self) -> int:
         """How many compiled programs are held now."""
         return len(self._programs)
+
+
+def bounded_jit(size: int):
+    """A decorator: `fn` as a [`BoundedJit`][piest_jax._bounded_jit.BoundedJit] keeping `size`
+    programs, with `fn`'s name and docstring."""
+
+    def wrap(fn: Callable) -> BoundedJit:
+        compiled = BoundedJit(fn, size)
+        functools.update_wrapper(compiled, fn)
+        return compiled
+
+    return wrap

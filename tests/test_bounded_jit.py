@@ -11,7 +11,7 @@ import pytest
 from compile_count import Compiles
 
 from piest_jax import _checks
-from piest_jax._bounded_jit import BoundedJit
+from piest_jax._bounded_jit import BoundedJit, bounded_jit
 
 
 def _poly(x, a, power):
@@ -62,6 +62,17 @@ def test_a_pushed_out_program_is_released():
     f(jnp.ones(4), 1.0, 1)
     gc.collect()
     assert program() is None
+
+
+def test_the_decorator_keeps_the_name_and_docstring():
+    @bounded_jit(1)
+    def scaled(x, a):
+        """x times a."""
+        return x * a
+
+    assert isinstance(scaled, BoundedJit)
+    assert (scaled.__name__, scaled.__doc__) == ("scaled", "x times a.")
+    np.testing.assert_array_equal(np.asarray(scaled(jnp.arange(3.0), 2.0)), [0.0, 2.0, 4.0])
 
 
 def test_size_must_be_positive():

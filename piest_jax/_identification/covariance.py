@@ -38,6 +38,7 @@ from jax import lax
 from jaxtyping import Array
 
 from .. import _checks
+from .._bounded_jit import bounded_jit
 from .fit_data import Scales
 from .time_constants import LAG_RATIO, lag_log_tau
 
@@ -182,7 +183,9 @@ def chunk_rows(run, layout: Layout, theta, s: Scales, x0, z0, dt):
     return s0, ds0, rows
 
 
-@eqx.filter_jit
+# Each parameter layout and record length compiles a large program (a scan of forward-mode
+# sensitivities and QR updates); a structure search meets many once each (`_bounded_jit.py`).
+@bounded_jit(2)
 def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, window: int, chunk: int):
     """What the covariance needs from J, accumulated chunk by chunk in bounded memory.
 
@@ -507,7 +510,7 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
     window = 1
     if method == "newey-west":
         # The block length comes from the residuals' lag-1 correlation: one pass without J.
-        pred = s.y_mid + s.y_half * run(jnp.asarray(un), *_natural(layout, theta, s, x0, z0, dt))
+        pred = _prediction(run, layout, theta, jnp.asarray(un), s, x0, z0, dt)
         window = bandwidth_of(*_lag_sums(np.asarray(y), np.asarray(pred), np.asarray(mask)))
         del pred
     R, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
@@ -515,6 +518,12 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
     factor = np.asarray(R, np.float64)[:, index] @ T
     blocks = T.T @ np.asarray(blocks, np.float64)[np.ix_(index, index)] @ T
     return estimate_moments(factor, blocks, float(ete), int(used.sum()), method=method, window=window, eps=eps)
+
+
+@bounded_jit(2)
+def _prediction(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
+    """The model's output in the data's units at the parameters `theta`."""
+    return s.y_mid + s.y_half * run(u, *_natural(layout, theta, s, x0, z0, dt))
 
 
 def _lag_sums(y, pred, mask, block: int = 2**20):

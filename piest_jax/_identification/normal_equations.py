@@ -35,7 +35,7 @@ import optimistix as optx
 from jax import lax
 from jax.flatten_util import ravel_pytree
 
-from .._bounded_jit import BoundedJit
+from .._bounded_jit import bounded_jit
 from .._models.creep import decays, lag_step
 from .._operators.play import play_step
 from .._progress import bar as _bar
@@ -345,7 +345,10 @@ def solve_starts(
         _BARS.pop().close()
 
 
-def _solve_starts_impl(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps, chunk, scout):
+# Each play count, lag count and record length compiles its own large program; a structure
+# search meets many once each, so only the latest two are kept (`_bounded_jit.py`).
+@bounded_jit(2)
+def _solve_starts(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max_steps, chunk, scout):
     # Padding repeats the last input (no play moves) and is masked out, as in `fit_data`.
     data = (chunked(un, un[-1], chunk), chunked(yn, 0.0, chunk), chunked(mask, 0.0, chunk))
 
@@ -386,8 +389,3 @@ def _solve_starts_impl(r0s, log_tau0s, un, yn, mask, st, fit_initial_states, max
     losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf).at[best].set(jnp.where(jnp.isfinite(loss), loss, jnp.inf))
     results = jax.tree.map(lambda a, b: b.at[best].set(a), result, results)
     return params, losses, results, steps.at[best].add(more)
-
-
-# Each play count, lag count and record length compiles its own large program; a structure
-# search meets many once each, so only the latest two are kept (`_bounded_jit.py`).
-_solve_starts = BoundedJit(_solve_starts_impl, 2)
