@@ -124,17 +124,23 @@ def _natural(layout: Layout, theta, s: Scales, x0, z0, dt):
     return (r, w, c0, x, *lags)
 
 
-# Compiled once per shape: run eagerly, `jacfwd` through the scan would compile it on every call.
-@eqx.filter_jit
-def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
-    """The model's output (T,) in the data's units and its Jacobian (T, p) at `theta`.
+def prediction(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
+    """The model's output (T,) in the data's units at `theta`.
 
     `run(u, r, w, offset, x0, log_tau, c, z0)` is the fit's model in normalised units; `x0`, `z0`
     are the normalised states used when they are not parameters.
     """
+    return s.y_mid + s.y_half * run(u, *_natural(layout, theta, s, x0, z0, dt))
+
+
+# Compiled once per shape: run eagerly, `jacfwd` through the scan would compile it on every call.
+@eqx.filter_jit
+def jacobian(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
+    """The model's output (T,) in the data's units ([`prediction`][]) and its Jacobian (T, p) at
+    `theta`."""
 
     def predict(theta):
-        return s.y_mid + s.y_half * run(u, *_natural(layout, theta, s, x0, z0, dt))
+        return prediction(run, layout, theta, u, s, x0, z0, dt)
 
     return predict(theta), jax.jacfwd(predict)(theta)
 
@@ -466,7 +472,7 @@ def fit_fields(
         std_errors=_checks.to_device(se),
         undetermined=_checks.to_device(undetermined),
         covariance_method=method,
-        residual_std=_checks.to_device(np.asarray(info["sigma"], theta.dtype)),
+        residual_std=_checks.to_device(theta.dtype.type(info["sigma"])),
         held=_checks.to_device(held),
     )
 
@@ -510,7 +516,7 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
     window = 1
     if method == "newey-west":
         # The block length comes from the residuals' lag-1 correlation: one pass without J.
-        pred = _prediction(run, layout, theta, jnp.asarray(un), s, x0, z0, dt)
+        pred = _long_prediction(run, layout, theta, jnp.asarray(un), s, x0, z0, dt)
         window = bandwidth_of(*_lag_sums(np.asarray(y), np.asarray(pred), np.asarray(mask)))
         del pred
     R, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
@@ -520,10 +526,8 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
     return estimate_moments(factor, blocks, float(ete), int(used.sum()), method=method, window=window, eps=eps)
 
 
-@bounded_jit(2)
-def _prediction(run, layout: Layout, theta, u, s: Scales, x0, z0, dt):
-    """The model's output in the data's units at the parameters `theta`."""
-    return s.y_mid + s.y_half * run(u, *_natural(layout, theta, s, x0, z0, dt))
+# The long-record covariance's prediction over every sample, compiled per layout and length.
+_long_prediction = bounded_jit(2)(prediction)
 
 
 def _lag_sums(y, pred, mask, block: int = 2**20):

@@ -44,10 +44,10 @@ def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2, extra=
         raise ValueError(f"`n_plays` must be a positive whole number, got {n_plays!r}")
     dtype = jnp.result_type(u, y)
     u, y = u.astype(dtype), y.astype(dtype)
-    mask = jnp.ones_like(u) if mask is None else jnp.asarray(mask, dtype)
-    if mask.shape != u.shape:
-        raise ValueError(f"`mask` has shape {mask.shape}, expected {u.shape}")
-    n_fit = int(np.sum(np.asarray(mask) > 0))
+    mask_np = np.ones(u.shape, dtype) if mask is None else np.asarray(mask, dtype)
+    if mask_np.shape != u.shape:
+        raise ValueError(f"`mask` has shape {mask_np.shape}, expected {u.shape}")
+    n_fit = int(np.sum(mask_np > 0))
     if per_play * n_plays + 1 + extra > n_fit:
         what = f"{n_plays} plays" + (" and the creep" if extra else "")
         raise ValueError(
@@ -71,7 +71,6 @@ def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2, extra=
         raise ValueError(f"the input has zero range (constant {u_lo:.6g}): it excites no play")
     y_lo, y_hi = float(y_np.min()), float(y_np.max())
     y_half = 0.5 * (y_hi - y_lo) if y_hi > y_lo else 1.0
-    dtype = u_np.dtype
     mid_u, half_u, mid_y = (dtype.type(v) for v in (0.5 * (u_lo + u_hi), 0.5 * (u_hi - u_lo), 0.5 * (y_lo + y_hi)))
     half_y = dtype.type(y_half)
     # In NumPy, moved to the device once: eager JAX operations would each compile a program for
@@ -85,7 +84,6 @@ def prepare(u, y, n_plays, mask, thresholds0, initial_states, per_play=2, extra=
     start = u_np[0] if initial_states is None else np.asarray(initial_states, dtype)
     x0_np = (np.broadcast_to(start, (int(n_plays),)).astype(dtype) - mid_u) / half_u
     un, yn = (u_np - mid_u) / half_u, (y_np - mid_y) / half_y
-    mask_np: np.ndarray = np.asarray(mask)
     # Records are padded to a few lengths so that nearby lengths share one compilation. Padding
     # repeats the last input, which moves no play, and its residuals are masked out.
     pad = pad_count(u.shape[0])
