@@ -41,12 +41,14 @@ def prng_key(key, name: str = "key"):
 
 def to_device(x) -> Array:
     """A NumPy array as a JAX array of the same values (float64 becomes float32 where JAX runs
-    without 64-bit types, as `jnp.asarray` does), copied, not sharing the NumPy memory.
+    without 64-bit types, as `jnp.asarray` does), not sharing the caller's memory.
 
     Not `jnp.asarray`: from jax 0.8 on it compiles a small program for every shape and dtype it
-    is given, a compilation (and about a megabyte kept) per record length and play count.
+    is given, a compilation (and about a megabyte kept) per record length and play count. The
+    host copy comes first because `jax.device_put` may alias a CPU array's memory, even when
+    told not to (seen with `may_alias=False`): the copy it may alias is then its own.
     """
-    return jax.device_put(np.asarray(x), may_alias=False)
+    return jax.device_put(np.array(x, copy=True))
 
 
 def as_float_array(x, name: str) -> Array:
