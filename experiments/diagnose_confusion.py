@@ -3,7 +3,7 @@
 Writes experiments/results/diagnose_confusion.json (rewritten after every record, so a stopped
 run keeps what it finished) and prints a markdown table. Each row is the hidden effect (or pair);
 each column what the diagnosis named first (or "none"); a record counts as right when the set of
-names equals the hidden set. The search runs with all seven candidates; the final RMSE is that of
+names equals the hidden set. The search runs with every registered effect as a candidate; the final RMSE is that of
 the chosen model (fitted on the whole record) over the whole record, against the true noise std.
 `--shard i/k` runs every k-th record, for k processes; `--merge` combines their files.
 
@@ -23,6 +23,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import piest_jax as pj  # noqa: E402
+from piest_jax._diagnosis.hidden import record_key  # noqa: E402
 
 PAIRS = [
     ("delay", "asymmetry"),
@@ -30,6 +31,8 @@ PAIRS = [
     ("creep", "asymmetry"),
     ("initial_state", "rate_dependence"),
     ("rate_dependence", "offset_drift"),
+    ("linear_dynamics", "minor_loop_noncongruence"),
+    ("minor_loop_noncongruence", "creep"),
 ]
 
 
@@ -38,9 +41,9 @@ def jobs(per_class, pairs_per_class):
     out = []
     # Interleaved by record index so that a run stopped early still covers every class.
     for i in range(max(per_class, pairs_per_class)):
-        for ci, cls in enumerate(classes):
+        for cls in classes:
             if i < (pairs_per_class if len(cls) == 2 else per_class):
-                out.append((ci, i, cls))
+                out.append((i, cls))
     return out
 
 
@@ -48,10 +51,10 @@ def run(args, shard, n_shards, save):
     key = jax.random.PRNGKey(args.seed)
     rows = []
     t0 = time.time()
-    for j, (ci, i, cls) in enumerate(jobs(args.per_class, args.pairs)):
+    for j, (i, cls) in enumerate(jobs(args.per_class, args.pairs)):
         if j % n_shards != shard:
             continue
-        k = jax.random.fold_in(jax.random.fold_in(key, ci), i)
+        k = record_key(key, cls, i)
         rec, truth = pj.hidden_effect_record(cls, key=k, n_samples=args.samples, noise_ar=args.noise_ar)
         t1 = time.time()
         # The whole diagnosis: its search names the effects, and it reports both models' RMSE over
@@ -90,8 +93,10 @@ def summarise(rows):
         h = "+".join(r["hidden"]) or "none"
         got = "+".join(r["named"]) or "none"
         table.setdefault(h, Counter())[got] += 1
+    # Rows in the order of the classes (merged shards interleave them).
+    order = ["none", *pj.EFFECTS, *("+".join(p) for p in PAIRS)]
     stats = {}
-    for h, c in table.items():
+    for h, c in sorted(table.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order)):
         hidden = [] if h == "none" else h.split("+")
         sel = [r for r in rows if "+".join(r["hidden"]) == ("" if h == "none" else h)]
         right = [r for r in sel if set(r["named"]) == set(hidden)]

@@ -42,7 +42,8 @@ def test_an_effect_must_state_what_it_is():
 
 
 def _coefficients(cfg, n_out, rng):
-    w = np.concatenate([rng.uniform(0.2, 1.0, _basis.N_PLAYS) / 8, [0.1], rng.normal(0, 0.1, n_out)])
+    n_own = _model.n_linear(cfg) - _basis.N_PLAYS - 1 + n_out
+    w = np.concatenate([rng.uniform(0.2, 1.0, _basis.N_PLAYS) / 8, [0.1], rng.normal(0, 0.1, n_own)])
     for name, sl in _model.output_slices(cfg).items():
         if EFFECT[name].positive:
             w[sl] = np.abs(w[sl])
@@ -55,7 +56,9 @@ def test_each_effect_jax_model_matches_its_numpy_model(name):
     p = _record()
     values = EFFECT[name].grid(p)
     cfg = {name: values[len(values) // 2]}
-    n_out = _model.output_terms(p, cfg, _model.linear_part(p, cfg)[:, 0], (0.0, 1.0)).shape[1]
+    X = _model.linear_part(p, cfg)
+    assert X.shape[1] == _model.n_linear(cfg) == _basis.N_PLAYS + 1 + EFFECT[name].n_play_terms(cfg[name])
+    n_out = _model.output_terms(p, cfg, X[:, 0], (0.0, 1.0)).shape[1]
     assert n_out == EFFECT[name].n_columns(cfg[name])
     w = _coefficients(cfg, n_out, np.random.default_rng(3))
     norm = (0.05, 0.7)
@@ -75,6 +78,39 @@ def test_each_effect_jax_model_matches_its_numpy_model(name):
             _model.predict(p, {}, w[: _basis.N_PLAYS + 1], w, norm),
             atol=1e-14,
         )
+
+
+@pytest.mark.parametrize(
+    "names",
+    [
+        ("minor_loop_noncongruence", "creep"),
+        ("asymmetry", "linear_dynamics", "minor_loop_noncongruence"),
+        ("delay", "minor_loop_noncongruence", "offset_drift"),
+    ],
+)
+def test_play_terms_and_output_terms_keep_one_coefficient_order(names):
+    # Play terms sit before every output term in the coefficient vector, whatever the effects'
+    # ranks: the NumPy model, the JAX model and the round trip through the parameters agree.
+    p = _record()
+    cfg = {n: EFFECT[n].grid(p)[-1] for n in names}
+    X = _model.linear_part(p, cfg)
+    n_out = _model.output_terms(p, cfg, X[:, 0], (0.0, 1.0)).shape[1]
+    w = _coefficients(cfg, n_out, np.random.default_rng(5))
+    slices = _model.coefficient_slices(cfg)
+    assert slices["minor_loop_noncongruence"].start == _basis.N_PLAYS + 1
+    assert sorted(s.stop - s.start for s in slices.values()) == sorted(
+        EFFECT[n].n_play_terms(cfg[n]) + EFFECT[n].n_columns(cfg[n]) for n in slices
+    )
+    norm = (0.05, 0.7)
+    ref = _model.predict(p, cfg, w, w, norm)
+    data, _, _ = _refine.data_of(p, norm, pad=False)
+    out = _refine.model(_refine.initial_params(cfg, w), _refine.structure(cfg), data)
+    np.testing.assert_allclose(np.asarray(out), ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_refine.to_config(cfg, _refine.initial_params(cfg, w))[1], w, rtol=1e-12, atol=1e-15)
+    # Leaving an effect out removes its own coefficients and nothing else.
+    rest, w_rest = _model.without(cfg, ["minor_loop_noncongruence"], w)
+    assert len(w_rest) == len(w) - EFFECT["minor_loop_noncongruence"].n_play_terms(cfg["minor_loop_noncongruence"])
+    np.testing.assert_array_equal(w_rest[: _basis.N_PLAYS + 1], w[: _basis.N_PLAYS + 1])
 
 
 @pytest.mark.parametrize("name", EFFECTS)

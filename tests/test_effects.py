@@ -196,3 +196,83 @@ def test_grids_and_refinements_are_physical():
     assert len(taus) == _creep.N_CREEP and taus[-1] == pytest.approx(p.t[-1] - p.t[0])
     q = ("second", 100.0, 0.5)
     assert all(n[1] > 0 and 0 < n[2] <= 1.5 for n in EFFECT["linear_dynamics"].neighbours(q, 0))
+
+
+@pytest.mark.parametrize("form", ["linear", "two_bands", "four_bands"])
+def test_noncongruence_terms_are_a_preisach_density_that_depends_on_the_centre(form):
+    # Relays of half-width r centred on a fine grid of s, weighted by a density f(s) and switched
+    # by the input: those centred below the play's output x_r are up, so their weighted sum is
+    # 2 G(x_r) - G(S) - G(-S) with G' = f. A density linear in the centre, f = 1 + a s, has
+    # G = x + a x^2 / 2; one that steps by a_k at s_k has G = x + sum_k a_k (x - s_k)+. The
+    # effect's columns for that play carry G exactly.
+    from piest_jax._diagnosis.effects import minor_loop_noncongruence as _mlnc
+
+    rng = np.random.default_rng(0)
+    g = np.cumsum(rng.normal(size=300))
+    g = 0.9 * (g - g.mean()) / np.abs(g - g.mean()).max()
+    H = _basis.plays(g, _basis.THRESHOLDS, np.full((1, _basis.N_PLAYS), g[0]))[0]
+    cols = EFFECT["minor_loop_noncongruence"].play_terms(form, H)
+    n = len(_mlnc.PLAYS)
+    S, ds = 2.0, 1e-4
+    s = np.arange(-S, S, ds) + ds / 2
+    edges = _mlnc.FORMS[form]
+    if edges is None:
+        a = np.array([0.35])
+        f = 1 + a[0] * s
+        G = lambda x: x + a[0] * x**2 / 2  # noqa: E731
+        coef = a / 2
+    else:
+        a = np.array([0.5, -0.3, 0.4])[: len(edges)]
+        f = 1 + sum(ak * (s > sk) for ak, sk in zip(a, edges))
+        G = lambda x: x + sum(ak * np.maximum(x - sk, 0) for ak, sk in zip(a, edges))  # noqa: E731
+        coef = a
+    assert cols.shape == (300, len(coef) * n)
+    moved = 0.0
+    for j_idx, j in enumerate(_mlnc.PLAYS):
+        r = _basis.THRESHOLDS[j]
+        up = s < g[0]  # relaxed at the first sample, as the play is
+        total = np.empty(len(g))
+        for i, gi in enumerate(g):
+            up = np.where(gi >= s + r, True, np.where(gi <= s - r, False, up))
+            total[i] = np.sum(np.where(up, f, -f)) * ds
+        terms = cols[:, [k * n + j_idx for k in range(len(coef))]] @ coef
+        expect = 2 * (H[:, j] + terms) - G(S) - G(-S)
+        # The grid places each switching boundary within one relay cell.
+        np.testing.assert_allclose(total, expect, atol=2 * np.abs(f).max() * ds)
+        moved = max(moved, float(np.ptp(terms)))
+    assert moved > 0.05  # the centre dependence shows: the check is not vacuous
+
+
+def test_reversal_spread_sees_loops_at_several_heights():
+    from piest_jax._diagnosis.scaling import reversal_spread
+
+    t = np.linspace(0, 10, 4001)
+    steady = np.sin(2 * np.pi * t)
+    assert reversal_spread(steady) < 1e-6
+    # Cycle k has amplitude A_k: its maximum sits at (1 + A_k) / 2 of the range, its minimum at
+    # (1 - A_k) / 2 (the range is [-1, 1], set by the largest cycle).
+    amps = np.linspace(0.4, 1.0, 10)
+    stepped = amps[np.minimum(t.astype(int), 9)] * np.sin(2 * np.pi * t)
+    expect = 0.5 * (np.percentile(amps, 90) - np.percentile(amps, 10))
+    assert abs(reversal_spread(stepped) - expect) < 1e-3
+    # One different loop (a start from rest, here a first cycle at half amplitude) hardly counts.
+    first = np.where(t < 1, 0.5, 1.0) * steady
+    assert reversal_spread(first) < 0.1 <= reversal_spread(stepped)
+
+
+def test_a_record_of_one_repeated_loop_does_not_try_noncongruence():
+    # A steady sine traces one loop: play terms could only reshape it, as a function of the
+    # output does, and would say nothing of loops elsewhere. The search leaves the effect out
+    # and says why.
+    from piest_jax._data.record import Record
+    from piest_jax._diagnosis import diagnose as _diagnose
+
+    t = np.arange(1500) * 1e-3
+    u = np.sin(2 * np.pi * 4 * t)
+    H = _basis.plays(u, _basis.THRESHOLDS, np.zeros((1, _basis.N_PLAYS)))[0]
+    y = H @ np.linspace(1.0, 0.2, _basis.N_PLAYS) + 0.3 * H[:, 8] ** 2
+    y = y + np.random.default_rng(0).normal(0, 1e-3, len(t))
+    s = _diagnose.search(Record(t, u, y), candidates=("asymmetry", "minor_loop_noncongruence"), solver=None)
+    assert "minor_loop_noncongruence" in s["rounds"][0]["untried"]
+    assert all("minor_loop_noncongruence" not in r["candidates"] for r in s["rounds"])
+    assert "asymmetry" in s["rounds"][0]["candidates"]

@@ -227,6 +227,8 @@ def _markdown(d, data):
         for k, c in sorted(r["candidates"].items(), key=lambda kv: -kv[1]["score"]):
             lines.append(f"| {k} | {c['heldout_rmse']:.4g} | {c['score']:.3g} | {c['significant']} |")
         lines.append("")
+        for k, why in r.get("untried", {}).items():
+            lines += [f"Not tried: `{k}`: {why}.", ""]
     lines += ["## Where the plain PI model disagrees with the data", ""]
     for w in d.where:
         if not w["structured"]:

@@ -231,7 +231,8 @@ def search(
     - `quiet`: no progress bar (it shows only on a terminal anyway).
 
     **Returns:** a dict with `effects` (named, in order), `pruned`, `rounds` (each candidate's
-    held-out RMSE and score per round), `model_base` and `model_final` (configuration,
+    held-out RMSE and score per round; the first round's `untried` names the candidates the
+    record cannot show, with why), `model_base` and `model_final` (configuration,
     weights and, with a `solver`, how the refinement went and which fit was kept), `scaling`,
     `loop` (the record's `loop_direction`, which decides whether the plays' weights are signed),
     `noise_std` and the held-out RMSEs (in the data's units).
@@ -245,6 +246,8 @@ def search(
     sc = scaling_of(rec, loop)
     step = int(math.ceil(rec.n_samples / SEARCH_SAMPLES))
     p = prepared(rec, sc, step=step, folds=True)
+    untried = {c: why for c in candidates if (why := EFFECT[c].unidentifiable(p)) is not None}
+    candidates = [c for c in candidates if c not in untried]
     floor = noise_std(rec.y) / sc.y_half
     step_noise = max(1, min(half_cycle(p.u) // SMOOTHER, len(p.y) // (8 * SMOOTHER)))
     cfg: dict[str, object] = {}
@@ -288,6 +291,8 @@ def search(
         )
         if len(rounds) == 1:
             first = scores
+            if untried:
+                rounds[0]["untried"] = untried
         if not ok:
             if len(named) == 1 and cur > STUCK_NOISE**2 * sigma2 and max_effects > 1 and not restarted:
                 restarted = True

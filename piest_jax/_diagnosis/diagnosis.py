@@ -93,7 +93,8 @@ class Diagnosis(Mapping):
     - `refinement`: `{"model_base": ..., "model_final": ...}`: the solver's result, steps, RMSE
       before and after, and which fit was kept (empty without a solver).
     - `rounds`: per round of the search, the current held-out RMSE, each candidate's held-out
-      RMSE, score and significance, the best candidate and whether it was named.
+      RMSE, score and significance, the best candidate and whether it was named; the first
+      round's `untried` says which candidates the record cannot show, and why.
     - `pruned`: effects named and then dropped as made redundant by a later one.
     - `heldout_baseline_rmse`, `heldout_final_rmse`: the held-out-block RMSEs of the search.
     - `search_step`: the search ran on every `search_step`-th sample.

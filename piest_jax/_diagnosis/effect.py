@@ -2,7 +2,8 @@
 
 A diagnosis model runs one signal chain, in stages:
 
-    input map g(u) -> thresholds r(t) -> initial states x0 -> plays X = [H_r(g), 1]
+    input map g(u) -> thresholds r(t) -> initial states x0 -> plays H = H_r(g)
+    -> play terms: X = [H, 1, F(H)] (functions of each play's output)
     -> linear filters on X (delay, dynamics) -> v = X w
     -> output terms: y = v + sum_k T_k(v) c_k (output polynomial, creep, drift over time)
 
@@ -10,7 +11,7 @@ Each effect acts at one or more stages and says how, twice: in NumPy for the var
 search (`diagnose.py`, where the output terms are columns with linear coefficients) and in JAX for
 the joint refinement (`refine.py`, where every parameter moves at once). Within a stage, effects
 act in the order of their `rank`, which is also the order their coefficients take in the
-coefficient vector [play weights, offset, output terms...]. An effect also says what its
+coefficient vector [play weights, offset, play terms..., output terms...]. An effect also says what its
 parameters are (`grid`, `neighbours`, `describe`) and how a synthetic record shows it
 (`draw`, `synth_*`: the hidden-effect generator's physical forms, deliberately not the fitted
 ones). The default of every hook is "this effect does not act here".
@@ -69,6 +70,14 @@ class AbstractEffect:
 
     # The search's parameters.
 
+    def unidentifiable(self, p) -> str | None:
+        """Why the prepared record `p` cannot show the effect, in words, or None when it can.
+
+        An effect the record does not excite would be fitted to whatever it happens to match
+        and would not carry over to another run; the search does not try it.
+        """
+        return None
+
     def grid(self, p) -> list:
         """The grid of the effect's nonlinear parameters for a prepared record `p`."""
         return [True]
@@ -102,6 +111,14 @@ class AbstractEffect:
     def batch_play_columns(self, p, g, r, values):
         """Play columns for many grid values in one pass (C, T, n), or None."""
         return None
+
+    def n_play_terms(self, q) -> int:
+        """How many play-term columns (and coefficients) the effect adds."""
+        return 0
+
+    def play_terms(self, q, H):
+        """Its play-term columns (T, n_play_terms): functions of the play outputs H (T, n)."""
+        return np.zeros((len(H), 0))
 
     def linear(self, q, X, dt):
         """The columns X (T, p) after this effect's linear filter."""
@@ -154,6 +171,10 @@ class AbstractEffect:
     def jax_initial_states(self, theta, static, g0, x0):
         return x0
 
+    def jax_play_terms(self, theta, static, H):
+        """What its play terms add to the hysteresis output (T,), or None."""
+        return None
+
     def jax_linear(self, theta, static, v, data):
         return v
 
@@ -168,6 +189,10 @@ class AbstractEffect:
 
     def synth_input(self, state, ctx, chain) -> None:
         """Apply the effect before the plays: update `chain` (x0, u, rt, g) in place."""
+
+    def synth_play_terms(self, state, ctx, X, w):
+        """What the effect adds to the hysteresis output from the plays X (T, n) and weights w."""
+        return 0.0
 
     def synth_linear(self, state, ctx, v):
         return v

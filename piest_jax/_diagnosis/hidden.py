@@ -4,10 +4,12 @@ Each effect is drawn in one of several physical forms, deliberately different fr
 diagnosis fits (creep as slow exponentials or as a logarithmic law, dynamics of first or second
 order, asymmetry as output saturation, a quadratic output, an input envelope or an exponential
 characteristic, delay applied to the input by interpolation, drift as a ramp, a warm-up
-exponential or a slow oscillation). Inputs start at rest; noise is white plus sensor quantisation.
+exponential or a slow oscillation, minor-loop non-congruence as a relay density exponential in the
+loop centre or with a Gaussian or Lorentzian bump). Inputs start at rest; noise is white plus sensor quantisation.
 """
 
 import types
+import zlib
 
 import jax
 import numpy as np
@@ -44,9 +46,9 @@ def _input(rng, n, dt):
     return t, rng.uniform(1, 10) * u, f0
 
 
-def _pi(u, r, w, x0, rt=None):
-    """The PI operator's output: the plays (thresholds r, or time-varying rt) weighted by w."""
-    return plays(u, r if rt is None else rt, np.asarray(x0, float)[None])[0] @ w
+def _pi(u, r, w, x0):
+    """The PI operator's output: the plays (thresholds r) weighted by w."""
+    return plays(u, r, np.asarray(x0, float)[None])[0] @ w
 
 
 def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0.0):
@@ -93,7 +95,11 @@ def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0
         signal = types.SimpleNamespace(x0=np.zeros(n_true), u=u, rt=None, g=None)
         for e, state in on:
             e.synth_input(state, ctx, signal)
-        v = _pi(signal.u if signal.g is None else signal.g, r, w, signal.x0, signal.rt)
+        g = signal.u if signal.g is None else signal.g
+        X = plays(g, r if signal.rt is None else signal.rt, np.asarray(signal.x0, float)[None])[0]
+        v = X @ w
+        for e, state in on:
+            v = v + e.synth_play_terms(state, ctx, X, w)
         for e, state in on:
             v = e.synth_linear(state, ctx, v)
         y = v.copy()
@@ -117,6 +123,16 @@ def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0
     truth["noise_ar"] = float(noise_ar)
     u_off = rng.uniform(-2, 2)
     return Record(t, u + u_off, y, source="hidden-effect generator"), truth
+
+
+def record_key(key, effects, i: int):
+    """The PRNG key of the `i`-th record of a class (its hidden effects, in order) in a study.
+
+    Derived from the class's names, not its place in a list of classes, so a study's records of
+    one class stay the same when effects are registered or classes added.
+    """
+    name = "+".join(effects) or "none"
+    return jax.random.fold_in(jax.random.fold_in(key, zlib.crc32(name.encode()) & 0x7FFFFFFF), i)
 
 
 def _ar1(white, phi: float):

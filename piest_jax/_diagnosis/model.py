@@ -52,23 +52,43 @@ def play_columns(p, cfg):
 
 
 def linear_part(p, cfg, play_cols=None):
-    """X before the output terms: plays and offset, through the effects' linear filters."""
+    """X before the output terms: plays, offset and play terms, through the effects' linear filters."""
     H = play_columns(p, cfg) if play_cols is None else play_cols
-    X = np.column_stack([H, np.ones(len(H))])
+    terms = [e.play_terms(cfg[e.name], H) for e in chain(cfg) if e.n_play_terms(cfg[e.name])]
+    X = np.column_stack([H, np.ones(len(H)), *terms])
     for e in chain(cfg):
         X = e.linear(cfg[e.name], X, p.dt)
     return X
 
 
-def output_slices(cfg, start=N_PLAYS + 1) -> dict:
-    """Where each effect's output coefficients sit in the coefficient vector."""
+def _slices(cfg, count, start) -> dict:
     out = {}
     for e in chain(cfg):
-        k = e.n_columns(cfg[e.name])
+        k = count(e, cfg[e.name])
         if k:
             out[e.name] = slice(start, start + k)
             start += k
     return out
+
+
+def n_linear(cfg) -> int:
+    """How many columns `linear_part` has: plays, offset and play terms."""
+    return N_PLAYS + 1 + sum(e.n_play_terms(cfg[e.name]) for e in chain(cfg))
+
+
+def play_term_slices(cfg) -> dict:
+    """Where each effect's play-term coefficients sit in the coefficient vector."""
+    return _slices(cfg, lambda e, q: e.n_play_terms(q), N_PLAYS + 1)
+
+
+def output_slices(cfg) -> dict:
+    """Where each effect's output coefficients sit in the coefficient vector."""
+    return _slices(cfg, lambda e, q: e.n_columns(q), n_linear(cfg))
+
+
+def coefficient_slices(cfg) -> dict:
+    """Each effect's own coefficients (play terms or output terms) in the coefficient vector."""
+    return {**play_term_slices(cfg), **output_slices(cfg)}
 
 
 def output_terms(p, cfg, v, norm, drive=None):
@@ -87,7 +107,7 @@ def drive_of(p, cfg, v0, w_v, norm):
     """What slow output terms follow, from the previous coefficients `w_v`: v0 plus the terms
     before them (the output polynomial), when `w_v` has output coefficients."""
     drive = v0
-    if len(w_v) <= N_PLAYS + 1:
+    if len(w_v) <= n_linear(cfg):
         return drive
     for name, sl in output_slices(cfg).items():
         drive = EFFECT[name].drive(cfg[name], drive, v0, norm, w_v[sl])
@@ -99,11 +119,12 @@ def positive_mask(cfg, n_cols, signed=False):
 
     Positive play weights are the physical PI model of a counterclockwise loop (every cumulative
     weight positive, hence an invertible operator); `signed` frees them, for a loop that runs
-    clockwise (`Prepared.signed`). An effect marks its own terms positive (creep's modes).
+    clockwise (`Prepared.signed`). An effect marks its own output terms positive (creep's
+    modes); play terms are signed.
     """
     pos = np.zeros(n_cols, bool)
     pos[:N_PLAYS] = not signed
-    if n_cols > N_PLAYS + 1:
+    if n_cols > n_linear(cfg):
         for name, sl in output_slices(cfg).items():
             pos[sl] = EFFECT[name].positive
     return pos
@@ -239,7 +260,7 @@ def without(cfg, names, *coefs):
     A vector too short to hold an effect's output coefficients (the plays-only start of `fit`)
     is returned as it is.
     """
-    slices = output_slices(cfg)
+    slices = coefficient_slices(cfg)
     out = []
     for w in coefs:
         w = np.asarray(w)

@@ -30,7 +30,7 @@ from .._identification.solvers import check_solver, least_squares_solver, result
 from .._operators.play import play
 from .basis import N_PLAYS, THRESHOLDS
 from .effects import EFFECT, chain
-from .model import output_slices
+from .model import coefficient_slices
 from .scaling import Prepared
 
 # The static shape of a configuration: (effect name, static form) pairs in chain order, which
@@ -63,7 +63,7 @@ def initial_params(cfg, w, signed: bool = False) -> dict:
         # flat and never move; starting it at a thousandth of the largest lets the solver use it.
         floor = 1e-3 * max(float(np.max(np.abs(w[:n]))), 1e-300)
         theta = {"weights": _softplus_inv(np.maximum(w[:n], floor)), "offset": np.asarray(w[n])}
-    slices = output_slices(cfg)
+    slices = coefficient_slices(cfg)
     for e in chain(cfg):
         sl = slices.get(e.name)
         theta.update(e.init_theta(cfg[e.name], w[sl] if sl is not None else w[:0]))
@@ -75,7 +75,8 @@ def to_config(cfg, theta) -> tuple[dict, np.ndarray]:
     t = {k: np.asarray(v, float) for k, v in theta.items()}
     cfg = dict(cfg)
     w = [np.asarray(_play_weights(t), float), [t["offset"]]]
-    for e in chain(cfg):
+    # The coefficient vector's order: play terms before output terms (`model.coefficient_slices`).
+    for e in sorted(chain(cfg), key=lambda e: not e.n_play_terms(cfg[e.name])):
         cfg[e.name], coef = e.from_theta(cfg[e.name], t)
         w.extend(coef)
     return cfg, np.concatenate([np.atleast_1d(np.asarray(v, float)) for v in w])
@@ -89,7 +90,7 @@ def _play_weights(theta):
 
 
 def _hysteresis(theta, st: Structure, u, rho):
-    """The weighted plays plus offset, before the linear filters (T,)."""
+    """The weighted plays, offset and play terms, before the linear filters (T,)."""
     r0 = jnp.asarray(THRESHOLDS, u.dtype)
     effects = [(EFFECT[n], s) for n, s in st]
     g = u
@@ -101,10 +102,15 @@ def _hysteresis(theta, st: Structure, u, rho):
     x0 = jnp.full(r0.shape, g[0])
     for e, s in effects:
         x0 = e.jax_initial_states(theta, s, g[0], x0)
-    w = _play_weights(theta)
     # The operator's own recurrence (the scan: thresholds that vary over time do not take the
     # kernel, and the solver differentiates through it).
-    return play(g, r, x0, method="scan") @ w + theta["offset"]
+    H = play(g, r, x0, method="scan")
+    v = H @ _play_weights(theta) + theta["offset"]
+    for e, s in effects:
+        extra = e.jax_play_terms(theta, s, H)
+        if extra is not None:
+            v = v + extra
+    return v
 
 
 def model(theta, st: Structure, data, *, transferable_only=False):

@@ -93,6 +93,26 @@ def half_cycle(u, frac: float = 0.05) -> int:
     return int(np.median(turns)) if len(turns) else len(u)
 
 
+def reversal_spread(u, frac: float = 0.05) -> float:
+    """How far the record's loops move: the larger spread (10th to 90th percentile) of its upper
+    and of its lower reversal points, as a share of the input's range (0 when one loop is traced
+    again and again; a single different reversal, a start from rest, hardly counts).
+
+    **Arguments:** `u`, the input (T,); `frac`, the smallest reversal counted, as a share of the
+    input's range.
+    """
+    u = np.asarray(u, float)
+    un = (u - u.min()) / max(np.ptp(u), 1e-300)
+    at = _turns(un, frac)
+    if len(at) < 2:
+        return 0.0
+    v = un[at]
+    # The extremes alternate; the first is a maximum when the input then falls.
+    first_max = v[0] > v[1]
+    highs, lows = (v[0::2], v[1::2]) if first_max else (v[1::2], v[0::2])
+    return float(max(np.subtract(*np.percentile(h, [90, 10])) for h in (highs, lows)))
+
+
 class Prepared:
     """One record in normalised units, with the quantities every regressor needs.
 
