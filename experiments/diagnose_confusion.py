@@ -3,8 +3,9 @@
 Writes experiments/results/diagnose_confusion.json (rewritten after every record, so a stopped
 run keeps what it finished) and prints a markdown table. Each row is the hidden effect (or pair);
 each column what the diagnosis named first (or "none"); a record counts as right when the set of
-names equals the hidden set. The search runs with every registered effect as a candidate; the final RMSE is that of
-the chosen model (fitted on the whole record) over the whole record, against the true noise std.
+names equals the hidden set. The search runs with every registered effect as a candidate; the
+final RMSE is that of the chosen model (fitted on the whole record) over the whole record, against
+the true noise std. Each class's records come from `hidden.record_key` (the class's names).
 `--shard i/k` runs every k-th record, for k processes; `--merge` combines their files.
 
     python experiments/diagnose_confusion.py --per-class 4 --pairs 2 --samples 500

@@ -5,7 +5,8 @@ diagnosis fits (creep as slow exponentials or as a logarithmic law, dynamics of 
 order, asymmetry as output saturation, a quadratic output, an input envelope or an exponential
 characteristic, delay applied to the input by interpolation, drift as a ramp, a warm-up
 exponential or a slow oscillation, minor-loop non-congruence as a relay density exponential in the
-loop centre or with a Gaussian or Lorentzian bump). Inputs start at rest; noise is white plus sensor quantisation.
+loop centre or with a Gaussian or Lorentzian bump). Inputs start at rest; noise is white plus
+sensor quantisation.
 """
 
 import types

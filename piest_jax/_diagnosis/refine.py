@@ -75,8 +75,10 @@ def to_config(cfg, theta) -> tuple[dict, np.ndarray]:
     t = {k: np.asarray(v, float) for k, v in theta.items()}
     cfg = dict(cfg)
     w = [np.asarray(_play_weights(t), float), [t["offset"]]]
-    # The coefficient vector's order: play terms before output terms (`model.coefficient_slices`).
-    for e in sorted(chain(cfg), key=lambda e: not e.n_play_terms(cfg[e.name])):
+    # In the coefficient vector's order (`model.coefficient_slices`); effects without
+    # coefficients add none wherever they come.
+    order = list(coefficient_slices(cfg))
+    for e in sorted(chain(cfg), key=lambda e: order.index(e.name) if e.name in order else -1):
         cfg[e.name], coef = e.from_theta(cfg[e.name], t)
         w.extend(coef)
     return cfg, np.concatenate([np.atleast_1d(np.asarray(v, float)) for v in w])

@@ -4,11 +4,12 @@ A PI operator is the Preisach model whose relay density depends only on a relay'
 minor loop has the same shape wherever it sits. Real materials' densities also depend on a
 relay's centre s, and every Preisach operator can be written through plays: each play's relays
 of half-width r that are switched up are those centred below the play's output x_r, so the
-relays of density mu(r, s) contribute F_r(x_r), with F_r' = mu(r, .). A density that steps at
-centres s_k adds ramps (x_r - s_k)+ to F_r: the model's play terms are a few plays' outputs
-through ramps at fixed knots, with signed coefficients (a density piecewise constant in the
-centre). A loop at height x then grows or shrinks with x, which no PI weight and no function of
-the whole output (asymmetry) reproduces for loops of several sizes at once.
+relays of density mu(r, s) contribute F_r(x_r), with F_r' = mu(r, .). A density linear in the
+centre adds x_r^2 to F_r, one that steps at centres s_k adds ramps (x_r - s_k)+: the model's play
+terms are a few plays' outputs squared or through ramps at fixed band edges, with signed
+coefficients. A loop at height x then grows or shrinks with x, which no PI weight and no function
+of the whole output (asymmetry) reproduces for loops of several sizes at once; a record whose
+loops all sit at one height cannot show it, and the search does not try it there.
 """
 
 import jax.numpy as jnp
@@ -27,8 +28,6 @@ PLAYS = (2, 5, 8, 11)
 # output squared), or piecewise constant, stepping at the band edges (ramps (x - s_k)+): smooth
 # densities take the first, steps and narrow bumps the others.
 FORMS = {"linear": None, "two_bands": (0.0,), "four_bands": (-0.5, 0.0, 0.5)}
-
-
 # Loops whose reversal points move by less than this share of the input's range are one loop
 # traced again: the play terms would then only reshape that loop, as a function of the output
 # does, and say nothing of loops elsewhere.
