@@ -5,7 +5,7 @@ run keeps what it finished) and prints a markdown table. Each row is the hidden 
 each column what the diagnosis named first (or "none"); a record counts as right when the set of
 names equals the hidden set. The search runs with every registered effect as a candidate; the
 final RMSE is that of the chosen model (fitted on the whole record) over the whole record, against
-the true noise std. Each class's records come from `hidden.record_key` (the class's names).
+the true noise std. Each class's records come from `pj.hidden_effect_key` (the class's names).
 `--shard i/k` runs every k-th record, for k processes; `--merge` combines their files.
 
     python experiments/diagnose_confusion.py --per-class 4 --pairs 2 --samples 500
@@ -24,7 +24,6 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import piest_jax as pj  # noqa: E402
-from piest_jax._diagnosis.hidden import record_key  # noqa: E402
 
 PAIRS = [
     ("delay", "asymmetry"),
@@ -55,7 +54,7 @@ def run(args, shard, n_shards, save):
     for j, (i, cls) in enumerate(jobs(args.per_class, args.pairs)):
         if j % n_shards != shard:
             continue
-        k = record_key(key, cls, i)
+        k = pj.hidden_effect_key(key, cls, i)
         rec, truth = pj.hidden_effect_record(cls, key=k, n_samples=args.samples, noise_ar=args.noise_ar)
         t1 = time.time()
         # The whole diagnosis: its search names the effects, and it reports both models' RMSE over

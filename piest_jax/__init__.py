@@ -139,6 +139,7 @@ _EXPORTS = {
     "EFFECTS": ("._diagnosis.effects", "EFFECTS"),
     "noise_std": ("._diagnosis.scaling", "noise_std"),
     "hidden_effect_record": ("._diagnosis.hidden", "generate"),
+    "hidden_effect_key": ("._diagnosis.hidden", "record_key"),
     # data
     "Record": ("._data.record", "Record"),
     "DataError": ("._data.record", "DataError"),
@@ -191,6 +192,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._diagnosis.effects import EFFECTS as EFFECTS
     from ._diagnosis.figure import diagnosis_figure as diagnosis_figure
     from ._diagnosis.hidden import generate as hidden_effect_record  # noqa: F401
+    from ._diagnosis.hidden import record_key as hidden_effect_key  # noqa: F401
     from ._diagnosis.scaling import noise_std as noise_std
     from ._estimation.batch import BatchStats as BatchStats
     from ._estimation.batch import run_batch as run_batch

@@ -128,7 +128,7 @@ def confusion():
     rows = []
     for cls, n in classes:
         for i in range(n):
-            rec, truth = _hidden.generate(cls, key=_hidden.record_key(key, cls, i), n_samples=N_SAMPLES)
+            rec, truth = _hidden.generate(cls, key=pj.hidden_effect_key(key, cls, i), n_samples=N_SAMPLES)
             # Naming does not depend on the final joint refinement (tests/test_refine.py), and
             # the refinement is only kept when it lowers the error: the grid fit is the bound.
             s = _diagnose.search(rec, solver=None)

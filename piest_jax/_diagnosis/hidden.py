@@ -127,10 +127,15 @@ def generate(effects=(), *, key, n_samples=2000, noise=None, noise_ar: float = 0
 
 
 def record_key(key, effects, i: int):
-    """The PRNG key of the `i`-th record of a class (its hidden effects, in order) in a study.
+    """The PRNG key of the `i`-th record of a class of hidden-effect records in a study.
 
     Derived from the class's names, not its place in a list of classes, so a study's records of
     one class stay the same when effects are registered or classes added.
+
+    **Arguments:** `key`, the study's PRNG key; `effects`, the class's hidden effects (a tuple of
+    names from `EFFECTS`, empty for effect-free records); `i`, the record's number in its class.
+
+    **Returns:** a PRNG key for [`hidden_effect_record`][piest_jax.hidden_effect_record].
     """
     name = "+".join(effects) or "none"
     return jax.random.fold_in(jax.random.fold_in(key, zlib.crc32(name.encode()) & 0x7FFFFFFF), i)
