@@ -33,6 +33,8 @@ PAIRS = [
     ("rate_dependence", "offset_drift"),
     ("linear_dynamics", "minor_loop_noncongruence"),
     ("minor_loop_noncongruence", "creep"),
+    ("asymmetry", "saturation"),
+    ("saturation", "creep"),
 ]
 
 

@@ -117,7 +117,10 @@ PAIRS = [
     ("initial_state", "rate_dependence"),
     ("rate_dependence", "offset_drift"),
     ("linear_dynamics", "minor_loop_noncongruence"),
+    ("saturation", "creep"),
 ]
+# asymmetry + saturation is measured by the experiment only: both bend the loop's ends, and the
+# one named first leaves less of the other than the naming rule asks (docs/diagnosis.md).
 PER_PAIR = 2
 
 

@@ -2,6 +2,9 @@
 interpolation, filters against a fine-step ODE solution, low-pass loop, constrained least squares
 against scipy's NNLS, blocked cross-validation against an explicit loop."""
 
+from types import SimpleNamespace
+
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -11,12 +14,14 @@ from scipy import optimize
 from piest_jax import play
 from piest_jax._diagnosis import basis as _basis
 from piest_jax._diagnosis import model as _model
+from piest_jax._diagnosis import output_map as _output_map
 from piest_jax._diagnosis.effects import EFFECT
 from piest_jax._diagnosis.effects import asymmetry as _asymmetry
 from piest_jax._diagnosis.effects import creep as _creep
 from piest_jax._diagnosis.effects import delay as _delay
 from piest_jax._diagnosis.effects import linear_dynamics as _linear_dynamics
 from piest_jax._diagnosis.effects import offset_drift as _offset_drift
+from piest_jax._diagnosis.effects import saturation as _saturation
 from piest_jax._diagnosis.scaling import Prepared
 
 
@@ -146,16 +151,108 @@ def test_fit_recovers_a_noise_free_delayed_pi():
 
 
 def test_output_polynomial_reaches_the_nonlinear_optimum():
-    # y = v + a v^2 + b v^3 with v a PI output: Gauss-Newton steps reach an exact fit, which a
-    # fixed-point iteration on the polynomial's columns does not.
+    # y = v + a v^2 + b (tanh(3 v) / 3 - v) with v a PI output: Gauss-Newton steps reach an
+    # exact fit, which a fixed-point iteration on the output map's columns does not. The even
+    # power is the asymmetry's, the odd saturating term the saturation's: together they fit it.
     p = _record()
     v = _basis.plays(p.u, _basis.THRESHOLDS, np.full((1, 16), p.u[0]))[0] @ np.linspace(0.3, 0.02, 16)
     vn = (v - 0.5 * (v.max() + v.min())) / (0.5 * np.ptp(v))
-    p.y = vn + 0.3 * vn**2 - 0.2 * vn**3
-    f = _model.fit(p, {"asymmetry": 0.0})
-    pred = _model.predict(p, {"asymmetry": 0.0}, f.w, f.w_v, f.norm)
+    p.y = vn + 0.3 * vn**2 + 0.2 * (np.tanh(3.0 * vn) / 3.0 - vn)
+    cfg = {"asymmetry": 0.0, "saturation": _saturation.NONE}
+    f = _model.fit(p, cfg)
+    pred = _model.predict(p, cfg, f.w, f.w_v, f.norm)
     assert np.sqrt(np.mean((pred - p.y) ** 2)) < 1e-4
     np.testing.assert_allclose(f.A @ f.w - f.target, pred - p.y, atol=1e-4)  # linearised = model
+
+
+@pytest.mark.parametrize("name,part", [("asymmetry", "even"), ("saturation", "odd")])
+def test_asymmetry_and_saturation_split_the_output_map(name, part):
+    # An odd output map keeps the loop point-symmetric and an even one breaks it: each effect
+    # fits its own part of a memoryless output map exactly, and leaves the other part.
+    p = _record()
+    v = _basis.plays(p.u, _basis.THRESHOLDS, np.full((1, 16), p.u[0]))[0] @ np.linspace(0.3, 0.02, 16)
+    vn = (v - 0.5 * (v.max() + v.min())) / (0.5 * np.ptp(v))
+    even = 0.25 * vn**2 - 0.1 * vn**4
+    odd = 0.3 * (np.tanh(3.0 * vn) / 3.0 - vn)
+
+    cfg = {name: 0.0 if name == "asymmetry" else _saturation.NONE}  # output terms only
+
+    def misfit(y):
+        p.y = y
+        f = _model.fit(p, cfg)
+        return np.sqrt(np.mean((_model.predict(p, cfg, f.w, f.w_v, f.norm) - y) ** 2))
+
+    own, other = (even, odd) if part == "even" else (odd, even)
+    # The other part is not fitted: a plain PI fit leaves it, and so does the effect (within 20 %).
+    p.y = vn + other
+    X = _model.linear_part(p, {})
+    plain = np.sqrt(np.mean((X @ _model.lstsq(X, p.y) - p.y) ** 2))
+    assert plain > 3e-3 and misfit(vn + other) > 0.8 * plain
+    # Its own part it fits to a hundredth of that (the centre the powers are taken about is
+    # the fitted hysteresis output's, not the plain fit's, which an even part shifts).
+    assert misfit(vn + own) < 0.01 * plain
+
+
+@pytest.mark.parametrize("name", ["asymmetry", "saturation"])
+def test_synthetic_output_maps_have_their_effects_symmetry(name):
+    # The generator's forms are pure: asymmetry's output maps are even about the loop's centre
+    # (beyond the identity), saturation's odd and flattening; both are monotone.
+    e = EFFECT[name]
+    v = np.linspace(-3.0, 5.0, 801)  # centre 1, half-range 4
+    z = (v - 1.0) / 4.0
+    ctx = SimpleNamespace(amp=1.0)
+    for seed in range(40):
+        state = e.draw(np.random.default_rng(seed), ctx)
+        new, y = e.synth_output(state, ctx, v, v.copy())
+        np.testing.assert_array_equal(new, y)
+        assert np.all(np.diff(new) > 0), state
+        extra = (new - 1.0) / 4.0 - z
+        if name == "asymmetry":
+            np.testing.assert_allclose(extra, extra[::-1], atol=1e-12)
+        else:
+            np.testing.assert_allclose(new - 1.0, -(new - 1.0)[::-1], atol=1e-12)
+            if "output" in state["form"]:
+                # Flattening: the ends keep their place, the slope falls towards them.
+                np.testing.assert_allclose(new[[0, -1]], v[[0, -1]], atol=1e-12)
+                slope = np.diff(new)
+                assert slope[-1] < slope[len(slope) // 2], state
+
+
+def test_saturating_terms_follow_saturation_curves_where_odd_powers_do_not():
+    # With the linear term, the two tanh terms follow each synthetic output saturation, at the
+    # ends of its strength range, to 0.1 % of the range (RMS); the odd powers v^3, v^5 leave
+    # more than 1 % of the strongest (the docs' numbers).
+    z = np.linspace(-1.0, 1.0, 401)
+    ctx = SimpleNamespace(amp=1.0)
+    worst = {"tanh": 0.0, "powers": 0.0}
+    for form, strengths in _saturation.STRENGTH_RANGES.items():
+        if not form.startswith("output"):
+            continue
+        for k in strengths:
+            curve, _ = EFFECT["saturation"].synth_output({"form": form, "k": k}, ctx, z, z.copy())
+            for name, cols in (
+                ("tanh", _output_map.saturating(z, (0.0, 1.0), _saturation.RATES)[0]),
+                ("powers", _output_map.powers(z, (0.0, 1.0), (3, 5))[0]),
+            ):
+                A = np.column_stack([z, np.ones_like(z), cols])
+                res = A @ np.linalg.lstsq(A, curve, rcond=None)[0] - curve
+                worst[name] = max(worst[name], np.sqrt(np.mean(res**2)) / np.ptp(curve))
+    assert worst["tanh"] < 1e-3 < 1e-2 < worst["powers"], worst
+
+
+def test_saturation_envelope_is_a_centred_tanh():
+    g = np.linspace(-1.0, 1.0, 201)
+    for k in _saturation.STRENGTHS:
+        out = _saturation.envelope(g, k)
+        np.testing.assert_allclose(out[[0, 100, -1]], [-1.0, 0.0, 1.0], atol=1e-15)
+        assert np.all(np.diff(out) > 0)
+        for c in _saturation.CENTRES:
+            ref = np.tanh(k * (g - c)) / np.tanh(k)
+            np.testing.assert_allclose(_saturation.envelope(g, k, c), ref, rtol=1e-14)
+            np.testing.assert_allclose(
+                np.asarray(_saturation.envelope(jnp.asarray(g), jnp.asarray(k), c, jnp)), ref, rtol=1e-12
+            )
+    assert _saturation.envelope(g, 0.0) is g
 
 
 def test_output_side_effects_are_reproduced_by_predict():
@@ -169,7 +266,7 @@ def test_output_side_effects_are_reproduced_by_predict():
     f = _model.fit(p, cfg)
     pos = _model.positive_mask(cfg, f.A.shape[1])
     # Plays and the two creep modes are sign-constrained; offset, polynomial and drift are free.
-    assert pos.sum() == _basis.N_PLAYS + 2 and pos[_basis.N_PLAYS + 1 + _asymmetry.N_POLY]
+    assert pos.sum() == _basis.N_PLAYS + 2 and pos[_basis.N_PLAYS + 1 + len(_asymmetry.POWERS)]
     assert np.all(f.w[pos] >= 0)
 
 

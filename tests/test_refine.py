@@ -12,7 +12,6 @@ import pytest
 from piest_jax._diagnosis import basis as _basis
 from piest_jax._diagnosis import model as _model
 from piest_jax._diagnosis import refine as _refine
-from piest_jax._diagnosis.effects import asymmetry as _asymmetry
 from piest_jax._diagnosis.scaling import Prepared
 
 T = 1200
@@ -29,9 +28,9 @@ def _coefficients(p, cfg, rng):
     X = _model.linear_part(p, cfg)
     n_out = _model.output_terms(p, cfg, X[:, 0], (0.0, 1.0)).shape[1]
     w = np.concatenate([rng.uniform(0.2, 1.0, _basis.N_PLAYS) / 8, [0.1], rng.normal(0, 0.1, n_out)])
-    if "creep" in cfg:
-        k = _basis.N_PLAYS + 1 + (_asymmetry.N_POLY if "asymmetry" in cfg else 0)
-        w[k : k + len(cfg["creep"])] = np.abs(w[k : k + len(cfg["creep"])])
+    if "creep" in cfg:  # its coefficients are kept >= 0
+        sl = _model.output_slices(cfg)["creep"]
+        w[sl] = np.abs(w[sl])
     return w
 
 
@@ -43,6 +42,9 @@ CONFIGS = [
     {"rate_dependence": ("scale", 0.5, 1.0)},
     {"rate_dependence": ("add", 0.05, 0.5)},
     {"asymmetry": 0.2},
+    {"saturation": (1.8, 0.15)},
+    {"asymmetry": -0.2, "saturation": (1.0, 0.0)},
+    {"saturation": (0.0, 0.0), "creep": (0.1, 1.0)},
     {"creep": (0.05, 0.3, 1.0)},
     {"offset_drift": True},
     {"initial_state": (0.7, -0.3)},
@@ -114,7 +116,9 @@ def test_gradient_matches_finite_differences():
 def test_refinement_recovers_parameters_off_the_grid(true, start):
     p0 = _record()
     w = _coefficients(p0, true, np.random.default_rng(11))
-    p = _record(_model.predict(p0, true, w, w, (0.0, 1.0)))
+    # The output polynomial's powers are taken about the centre of the hysteresis output.
+    norm = _model._centre(_model.linear_part(p0, true) @ w[: _basis.N_PLAYS + 1])
+    p = _record(_model.predict(p0, true, w, w, norm))
     f = _model.fit(p, start)
     # Noise-free data: stop on the error's own scale, not on a measured record's noise level.
     r = _refine.refine(p, start, f.w, f.norm, rtol=1e-10, atol=1e-16, max_steps=300)
@@ -126,6 +130,9 @@ def test_refinement_recovers_parameters_off_the_grid(true, start):
         plain = not isinstance(got, tuple) or not isinstance(got[0], str)
         have = np.atleast_1d(np.asarray(got if plain else got[1:], float))
         np.testing.assert_allclose(have, want, rtol=1e-8, err_msg=k)
+    if "asymmetry" in true:  # the centre moved from the fit's to the true one
+        assert abs(f.norm[0] - norm[0]) > 1e-3
+        np.testing.assert_allclose(float(r.theta["poly_centre"]), norm[0], rtol=1e-8)
 
 
 def test_unknown_solver_is_refused():

@@ -105,7 +105,10 @@ def test_a_drift_gives_way_to_creep_that_explains_as_much():
     assert _diagnose._prefer_input_driven(s, "creep", cur, sigma2, n) == "creep"
 
 
-@pytest.mark.parametrize("cfg", [{}, {"creep": (0.05, 0.4)}, {"asymmetry": 0.2, "delay": 0.013}])
+@pytest.mark.parametrize(
+    "cfg",
+    [{}, {"creep": (0.05, 0.4)}, {"asymmetry": 0.2, "delay": 0.013}, {"saturation": (1.0, 0.15), "creep": (0.05, 0.4)}],
+)
 def test_refined_and_grid_models_agree_from_a_history(cfg):
     # The diagnosis carries a model either as grid coefficients or as the optimistix-refined
     # parameters; from the same input history both must give the same prediction.
@@ -114,9 +117,10 @@ def test_refined_and_grid_models_agree_from_a_history(cfg):
     ident, other = _record(), _record(seed=4)
     sc = scaling_of(ident)
     model = _model(cfg)
-    if "asymmetry" in cfg:
-        model["coef"] = np.insert(model["coef"], _basis.N_PLAYS + 1, [0.05, -0.02, 0.01, 0.0])
-        model["coef_v"] = model["coef"]
+    for name, poly in (("asymmetry", [0.05, -0.02]), ("saturation", [-0.04, 0.01])):
+        if name in cfg:  # output polynomial coefficients, before creep's
+            model["coef"] = np.insert(model["coef"], _basis.N_PLAYS + 1, poly)
+            model["coef_v"] = model["coef"]
     # Positive creep coefficients, so the refined model's softplus stands for them exactly.
     theta = _refine.initial_params(cfg, model["coef"])
     refined = _refine.Refined(theta, _refine.structure(cfg), cfg, "successful", 0, 0.0, 0.0, True)

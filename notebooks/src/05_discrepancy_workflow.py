@@ -13,8 +13,8 @@
 # When $e$ is well above $\hat\sigma$ and structured (it correlates with time, with $\dot u$, it
 # concentrates at the start or during holds), some physical effect is missing. The workflow
 # tries each candidate effect $k$ (initial state, delay, linear dynamics, rate dependence, creep,
-# asymmetry, offset drift, minor loops that change shape with where they sit), refits, and scores
-# it on **held-out blocks**, contiguous blocks
+# asymmetry, offset drift, minor loops that change shape with where they sit, saturation), refits,
+# and scores it on **held-out blocks**, contiguous blocks
 # interleaved with the fitting blocks, so the model runs through them:
 #
 # $$\text{gain}_k = \mathrm{MSE}_{\text{held-out}}(\text{current}) -

@@ -5,7 +5,7 @@ A diagnosis model runs one signal chain, in stages:
     input map g(u) -> thresholds r(t) -> initial states x0 -> plays H = H_r(g)
     -> play terms: X = [H, 1, F(H)] (functions of each play's output)
     -> linear filters on X (delay, dynamics) -> v = X w
-    -> output terms: y = v + sum_k T_k(v) c_k (output polynomial, creep, drift over time)
+    -> output terms: y = v + sum_k T_k(v) c_k (output map, creep, drift over time)
 
 Each effect acts at one or more stages and says how, twice: in NumPy for the variable-projection
 search (`diagnose.py`, where the output terms are columns with linear coefficients) and in JAX for
@@ -58,9 +58,14 @@ class AbstractEffect:
     # Its output terms are nonlinear in v (`slope` is not None): `model.fit` keeps the best
     # Gauss-Newton iterate.
     bilinear: ClassVar[bool] = False
+    # Its output terms are functions of the centred output (`output_map.py`): the fit and the
+    # joint refinement then also find the centre they are taken about.
+    centred_output_map: ClassVar[bool] = False
 
-    def __init_subclass__(cls, **kwargs):
+    def __init_subclass__(cls, abstract: bool = False, **kwargs):
         super().__init_subclass__(**kwargs)
+        if abstract:  # a family of effects sharing hooks, not an effect of its own
+            return
         missing = [a for a in ("name", "summary", "rank", "listed", "n_params") if not hasattr(cls, a)]
         if missing:
             raise TypeError(f"effect {cls.__name__} does not define {', '.join(missing)}")
@@ -178,8 +183,10 @@ class AbstractEffect:
     def jax_linear(self, theta, static, v, data):
         return v
 
-    def jax_output(self, theta, static, v, data):
-        return v
+    def jax_output(self, theta, static, y, v, data):
+        """The output `y` (T,) after this effect's output terms; `v` is the hysteresis output,
+        which the output map's terms are functions of (as in `columns`)."""
+        return y
 
     # The synthetic form (hidden-effect generator).
 

@@ -24,6 +24,9 @@ from .basis import N_PLAYS, THRESHOLDS, plays
 from .effects import EFFECT, chain
 
 RIDGE = 1e-6
+# At most this many fits of the output map, each about the centre and half-range that the one
+# before found (`fit`).
+MAP_PASSES = 4
 
 
 def play_inputs(p, cfg):
@@ -94,8 +97,8 @@ def coefficient_slices(cfg) -> dict:
 def output_terms(p, cfg, v, norm, drive=None):
     """The output-term columns at the hysteresis output `v`, in chain order.
 
-    `norm` = (centre, half-range) scales v for the output polynomial; it is fixed by the fit on
-    the identification record, so that a validation record sees the same polynomial. `drive`
+    `norm` = (centre, half-range) scales v for the output map; it is fixed by the fit on
+    the identification record, so that a validation record sees the same map. `drive`
     is what slow terms follow (default v; see `drive_of`).
     """
     drive = v if drive is None else drive
@@ -105,7 +108,7 @@ def output_terms(p, cfg, v, norm, drive=None):
 
 def drive_of(p, cfg, v0, w_v, norm):
     """What slow output terms follow, from the previous coefficients `w_v`: v0 plus the terms
-    before them (the output polynomial), when `w_v` has output coefficients."""
+    before them (the output map), when `w_v` has output coefficients."""
     drive = v0
     if len(w_v) <= n_linear(cfg):
         return drive
@@ -171,7 +174,7 @@ class Fit(NamedTuple):
     `A` (T, q) is the design at the solution and `target` (T,) what `A @ w` fits: the data,
     plus, with an output term nonlinear in v, the offset of its linearisation (Gauss-Newton).
     `w_v` are the previous coefficients, which built the slow terms and the linearisation,
-    `norm` the (centre, half-range) of the hysteresis output that scales the polynomial.
+    `norm` the (centre, half-range) of the hysteresis output that scales the output map.
     """
 
     A: np.ndarray
@@ -196,7 +199,7 @@ def fit(p, cfg, *, X=None) -> Fit:
 
     The output terms depend on the hysteresis output v = X w. Terms linear in v (creep) are
     rebuilt from the previous fit (a fixed-point iteration, creep being small). A term nonlinear
-    in v (the output polynomial, y = v + P(v) a, bilinear in (w, a)) makes a fixed-point
+    in v (the output map, y = v + P(v) a, bilinear in (w, a)) makes a fixed-point
     iteration stall short of the optimum, so it takes Gauss-Newton steps: around (w0, a0),
     y + g v0 = diag(1 + g) X w + P(v0) a with g = P'(v0) a0, a least-squares problem.
 
@@ -206,36 +209,74 @@ def fit(p, cfg, *, X=None) -> Fit:
     """
     X = linear_part(p, cfg) if X is None else X
     px = X.shape[1]
-    w = w_v = lstsq(X, p.y, positive_mask({}, px, p.signed))
-    v = X @ w
-    norm = (0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-12))
-    A, target = X, p.y
+    w0 = lstsq(X, p.y, positive_mask({}, px, p.signed))
     slices = output_slices(cfg)
-    if slices:
-        bilinear = any(EFFECT[n].bilinear for n in slices)
-        iters = max(EFFECT[n].fit_iterations for n in slices)
-        n_out = sum(s.stop - s.start for s in slices.values())
-        pos = positive_mask(cfg, px + n_out, p.signed)
-        best = None
-        for i in range(iters):
-            w_v = w
-            v0 = X @ w_v[:px]
-            T = output_terms(p, cfg, v0, norm, drive_of(p, cfg, v0, w_v, norm))
-            Xs, target = X, p.y
-            g = _slope(p, cfg, v0, w, norm) if i > 0 else None
-            if g is not None:
-                Xs, target = (1 + g)[:, None] * X, p.y + g * v0
-            A = np.column_stack([Xs, T])
-            w = lstsq(A, target, pos)
-            if bilinear:
-                # Gauss-Newton without a line search can overshoot: keep the best model seen.
+    norm = _centre(X @ w0)
+    if not slices:
+        return Fit(X, p.y, w0, w0, norm)
+    best = _output_terms_fit(p, cfg, X, w0, norm)
+    if any(EFFECT[n].centred_output_map for n in slices):
+        # The output map's terms are split by parity about the loop's centre and scaled by its
+        # half-range, which the plain fit's output only approximates (an even part shifts it,
+        # a saturation shrinks it): further passes take them about the centre and half-range
+        # of the hysteresis output the last pass found.
+        for _ in range(MAP_PASSES - 1):
+            new = _centre(X @ best[1].w[:px])
+            if np.allclose(new, best[1].norm, rtol=0, atol=0.01 * best[1].norm[1]):
+                break
+            again = _output_terms_fit(p, cfg, X, w0, new)
+            if again[0] >= best[0]:
+                break
+            best = again
+    return best[1]
+
+
+def _output_terms_fit(p, cfg, X, w, norm) -> tuple[float, Fit]:
+    """`fit`'s iterations for the output terms from the plain coefficients `w`, with the
+    output map's normalisation `norm` fixed: (sum of squared errors, the fit); the error is
+    only computed, and NaN otherwise, when a term is nonlinear in v."""
+    px = X.shape[1]
+    slices = output_slices(cfg)
+    bilinear = any(EFFECT[n].bilinear for n in slices)
+    iters = max(EFFECT[n].fit_iterations for n in slices)
+    n_out = sum(s.stop - s.start for s in slices.values())
+    pos = positive_mask(cfg, px + n_out, p.signed)
+    best = None
+    for i in range(iters):
+        w_v = w
+        v0 = X @ w_v[:px]
+        T = output_terms(p, cfg, v0, norm, drive_of(p, cfg, v0, w_v, norm))
+        Xs, target = X, p.y
+        g = _slope(p, cfg, v0, w, norm) if i > 0 else None
+        if g is not None:
+            Xs, target = (1 + g)[:, None] * X, p.y + g * v0
+        A = np.column_stack([Xs, T])
+        w = lstsq(A, target, pos)
+        if not bilinear:  # the fixed-point iteration's last iterate
+            best = (np.nan, Fit(A, target, w, w_v, norm))
+            continue
+        sse = float(np.sum((_predict(X, p, cfg, w, w_v, norm) - p.y) ** 2))
+        if best is not None and sse >= best[0]:
+            # A full Gauss-Newton step can overshoot: it is shortened until the model improves
+            # (backtracking), else the best model seen is kept.
+            full, w0 = w, best[1].w
+            for shrink in (0.5, 0.25, 0.125):
+                w = w0 + shrink * (full - w0)
                 sse = float(np.sum((_predict(X, p, cfg, w, w_v, norm) - p.y) ** 2))
-                if best is not None and sse >= best[0]:
+                if sse < best[0]:
                     break
-                best = (sse, Fit(A, target, w, w_v, norm))
-        if best is not None:
-            return best[1]
-    return Fit(A, target, w, w_v, norm)
+            else:
+                break
+            # The linear problem whose solution the shortened step is, for the held-out score.
+            target = target - A @ (full - w)
+        best = (sse, Fit(A, target, w, w_v, norm))
+    assert best is not None
+    return best
+
+
+def _centre(v):
+    """(centre, half-range) of a hysteresis output."""
+    return (0.5 * (v.max() + v.min()), max(0.5 * np.ptp(v), 1e-12))
 
 
 def predict(p, cfg, w, w_v, norm):

@@ -2,10 +2,10 @@
 
 The naming loop (`diagnose`) fits every candidate by variable projection on a grid of its
 nonlinear parameters: exact and global over the grid, but no finer than the grid and its pattern
-search, and with the creep and output-polynomial terms linearised around the previous fit. Once
+search, and with the creep and output-map terms linearised around the previous fit. Once
 the effects are chosen, the model is refined here as one nonlinear least-squares problem solved
 by optimistix (Levenberg-Marquardt by default, as in `fit_pi`): the play weights, the offset and
-every effect's parameters (delay, time constants, damping, rate gain and exponent, envelope,
+every effect's parameters (delay, time constants, damping, rate gain and exponent, envelopes,
 history turning points, creep time constants) move together, differentiated through the scans.
 The model is the exact one of `model` (each effect's JAX hooks state the same equations as its
 NumPy ones, normalised units): the creep follows the current output, not the previous fit's.
@@ -31,6 +31,7 @@ from .._operators.play import play
 from .basis import N_PLAYS, THRESHOLDS
 from .effects import EFFECT, chain
 from .model import coefficient_slices
+from .output_map import CENTRE
 from .scaling import Prepared
 
 # The static shape of a configuration: (effect name, static form) pairs in chain order, which
@@ -129,9 +130,10 @@ def model(theta, st: Structure, data, *, transferable_only=False):
     v = _hysteresis(theta, st, data["u"], data["rho"])
     for n, s in st:
         v = EFFECT[n].jax_linear(theta, s, v, data)
+    y = v
     for n, s in st:
-        v = EFFECT[n].jax_output(theta, s, v, data)
-    return v
+        y = EFFECT[n].jax_output(theta, s, y, v, data)
+    return y
 
 
 def data_of(p: Prepared, norm, *, pad: bool = True):
@@ -185,7 +187,7 @@ def refine(
     **Arguments:**
 
     - `p`: the record (normalised units, full rate).
-    - `cfg`, `w`, `norm`: the configuration, its coefficients and the output polynomial's
+    - `cfg`, `w`, `norm`: the configuration, its coefficients and the output map's
       normalisation, from `model.fit`.
     - `solver`: `"lm"` (Levenberg-Marquardt), `"gn"` (Gauss-Newton) or `"bfgs"`, or an optimistix
       least-squares solver or minimiser object (used as given).
@@ -200,6 +202,8 @@ def refine(
     check_solver(solver)
     st = structure(cfg)
     theta0 = initial_params(cfg, w, p.signed)
+    if any(e.centred_output_map for e in chain(cfg)):
+        theta0[CENTRE] = jnp.asarray(float(norm[0]))
     data, y, mask = data_of(p, norm)
     theta, result, steps, loss0, loss = _solve(
         theta0, st, data, y, mask, solver=solver, max_steps=max_steps, rtol=rtol, atol=atol
@@ -219,7 +223,7 @@ def predict(refined: Refined, p: Prepared, norm, *, transferable_only=False, his
     """The refined model's output on a record (normalised units, (T,)).
 
     **Arguments:** `refined`; `p`, a record in the identification record's units; `norm`, the
-    output polynomial's normalisation; `transferable_only`, as in `model`; `history`, turning
+    output map's normalisation; `transferable_only`, as in `model`; `history`, turning
     points of an input history that sets the plays' initial states on this record (as the
     `initial_state` effect does), which implies `transferable_only` for the drift.
 

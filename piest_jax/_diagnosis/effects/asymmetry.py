@@ -1,51 +1,28 @@
-"""Asymmetry: loops that are not point-symmetric (an input envelope and an output polynomial)."""
+"""Asymmetry: loops that are not point-symmetric (an input envelope and an even output polynomial).
 
-import jax.numpy as jnp
+Point symmetry is what an odd input map and an odd output map keep; the effect fits the even
+parts: a quadratic term in the input before the plays and the even powers of the output after
+them. An output that bends both ends alike is the saturation effect's.
+"""
+
 import numpy as np
 
-from ..effect import AbstractEffect
+from ..output_map import OutputMapEffect, jax_powers, powers, synth_output_map
 
-N_POLY = 4  # output polynomial terms v^2 .. v^5
-POLY_RANGE = 1.5
-
-
-def poly(v, norm):
-    """Output polynomial columns [vc^2 .. vc^(N_POLY+1)] and their derivatives in v.
-
-    vc = (v - norm[0]) / norm[1]. Well beyond the range of the first fit, the polynomial is held
-    (the model continues linearly): a polynomial extrapolated far past the data diverges.
-    """
-    raw = (v - norm[0]) / norm[1]
-    vc = np.clip(raw, -POLY_RANGE, POLY_RANGE)
-    pw = [np.ones_like(vc), vc]
-    for _ in range(N_POLY):
-        pw.append(pw[-1] * vc)
-    cols = np.column_stack(pw[2:])
-    der = np.column_stack([k * pw[k - 1] for k in range(2, 2 + N_POLY)]) / norm[1]
-    return cols, der * (np.abs(raw) < POLY_RANGE)[:, None]
+# The output polynomial's powers: the even ones, the part of an output map that breaks the
+# loop's point symmetry (the odd ones are the saturation effect's).
+POWERS = (2, 4)
 
 
-def poly_jax(v, norm):
-    """The columns of `poly`, traceable."""
-    vc = jnp.clip((v - norm[0]) / norm[1], -POLY_RANGE, POLY_RANGE)
-    return jnp.stack([vc**k for k in range(2, 2 + N_POLY)], axis=1)
-
-
-class Asymmetry(AbstractEffect):
-    """g = u + b u^2 before the plays (q = b) and y = v + [v^2 .. v^5] a after them.
-
-    The output polynomial is bilinear with the play weights, so `model.fit` takes Gauss-Newton
-    steps on it.
-    """
+class Asymmetry(OutputMapEffect):
+    """g = u + b u^2 before the plays (q = b) and y = v + [vc^2, vc^4] a after them."""
 
     name = "asymmetry"
-    summary = "loops are not point-symmetric (input envelope, output polynomial)"
+    summary = "loops are not point-symmetric (input envelope, even output powers)"
     rank = 3
     listed = 5
-    n_params = N_POLY + 1
-    play_side = True
-    fit_iterations = 5
-    bilinear = True
+    n_terms = len(POWERS)
+    n_params = n_terms + 1
 
     def grid(self, p):
         return [0.0, -0.4, -0.2, 0.2, 0.4]
@@ -63,17 +40,8 @@ class Asymmetry(AbstractEffect):
     def input_map(self, q, g):
         return g + q * g**2
 
-    def n_columns(self, q):
-        return N_POLY
-
-    def columns(self, q, p, v, drive, norm):
-        return poly(v, norm)[0]
-
-    def drive(self, q, drive, v0, norm, coef):
-        return drive + poly(v0, norm)[0] @ coef
-
-    def slope(self, q, v, norm, coef):
-        return poly(v, norm)[1] @ coef
+    def terms(self, v, norm):
+        return powers(v, norm, POWERS)
 
     def init_theta(self, q, coef):
         return {"envelope": np.asarray(float(q)), "poly": coef}
@@ -84,32 +52,31 @@ class Asymmetry(AbstractEffect):
     def jax_input(self, theta, static, g):
         return g + theta["envelope"] * g**2
 
-    def jax_output(self, theta, static, v, data):
-        return v + poly_jax(v, data["norm"]) @ theta["poly"]
+    def jax_output(self, theta, static, y, v, data):
+        return y + jax_powers(v, theta, data["norm"], POWERS) @ theta["poly"]
 
     def draw(self, prng, ctx):
-        form = str(prng.choice(["saturation", "quadratic", "envelope", "exponential"]))
-        return {"form": form, "k": prng.uniform(0.25, 0.5) * prng.choice([-1, 1])}
+        # Even forms only: an odd part would bend both ends alike, which is saturation.
+        form = str(prng.choice(["quadratic", "envelope", "power", "cosh"]))
+        state = {"form": form, "k": prng.uniform(0.25, 0.5) * prng.choice([-1, 1])}
+        if form == "power":
+            state["p"] = prng.uniform(1.3, 2.5)
+        elif form == "cosh":
+            state["c"] = prng.uniform(1.0, 2.5)
+        return state
 
     def synth_input(self, state, ctx, chain):
         if state["form"] == "envelope":
             chain.g = chain.u + state["k"] * chain.u**2 / ctx.amp
 
     def synth_output(self, state, ctx, v, y):
-        form, k_asym = state["form"], state["k"]
+        form, k = state["form"], state["k"]
         if form == "envelope":
             return v, y
-        m = 0.5 * (v.max() + v.min())
-        h = 0.5 * np.ptp(v)
-        z = (v - m) / h
-        if form == "saturation":
-            k = 0.8 + 1.4 * abs(k_asym)
-            z = np.tanh(k * z) / np.tanh(k)
-        elif form == "quadratic":
-            z = z + 0.5 * k_asym * (z**2 - 0.5)
-        else:
-            k = (0.5 + 2 * abs(k_asym)) * np.sign(k_asym)
-            z = np.expm1(k * z) / k
-        new = m + h * z
-        # y holds v plus the terms before this one; (y - v) + new keeps them exactly.
-        return new, (y - v) + new
+        # Each stays monotone on the loop: the even term's slope is below 1 in size.
+        if form == "quadratic":
+            return synth_output_map(v, y, lambda z: z + 0.5 * k * (z**2 - 0.5))
+        if form == "power":
+            return synth_output_map(v, y, lambda z: z + k / state["p"] * np.abs(z) ** state["p"])
+        c = state["c"]
+        return synth_output_map(v, y, lambda z: z + k * (np.cosh(c * z) - 1.0) / (c * np.sinh(c)))

@@ -26,14 +26,14 @@ def lowpass(v, lam):
 class Creep(AbstractEffect):
     """y = v + sum_k c_k (lowpass_tau_k(drive) - drive), c_k >= 0, q = the time constants (s).
 
-    The drive is the output before creep (after the output polynomial): creep is a slow yield of
+    The drive is the output before creep (after the output map): creep is a slow yield of
     the displacement itself. A positive coefficient is an output that keeps moving after a
     change, in the direction of the change.
     """
 
     name = "creep"
     summary = "after a change the output keeps moving slowly the same way"
-    rank = 5
+    rank = 6
     listed = 4
     n_params = N_CREEP
     positive = True
@@ -70,10 +70,11 @@ class Creep(AbstractEffect):
         taus = tuple(float(v) for v in np.exp(theta["log_creep_tau"]))
         return taus, [np.asarray(jax.nn.softplus(theta["creep"]), float)]
 
-    def jax_output(self, theta, static, v, data):
+    def jax_output(self, theta, static, y, v, data):
+        # Driven by the output so far (after the output map), as in `columns`.
         lam = jnp.exp(-data["dt"] / jnp.exp(theta["log_creep_tau"]))
         c = jax.nn.softplus(theta["creep"])
-        return v + (lowpass(v, lam) - v[:, None]) @ c
+        return y + (lowpass(y, lam) - y[:, None]) @ c
 
     def draw(self, prng, ctx):
         c = prng.uniform(0.08, 0.2)

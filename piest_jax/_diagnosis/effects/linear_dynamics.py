@@ -68,7 +68,7 @@ class LinearDynamics(AbstractEffect):
 
     name = "linear_dynamics"
     summary = "the output follows through a 1st- or 2nd-order lag (a resonance)"
-    rank = 4
+    rank = 5
     listed = 2
     n_params = 2
 

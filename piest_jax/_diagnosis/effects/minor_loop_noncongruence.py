@@ -55,7 +55,7 @@ class MinorLoopNoncongruence(AbstractEffect):
 
     name = "minor_loop_noncongruence"
     summary = "minor loops change shape with where they sit (a Preisach density that depends on the loop's centre)"
-    rank = 7
+    rank = 8
     listed = 7
     # Charged at its largest form.
     n_params = max(_count(f) for f in FORMS)

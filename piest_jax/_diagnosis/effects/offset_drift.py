@@ -16,7 +16,7 @@ class OffsetDrift(AbstractEffect):
 
     name = "offset_drift"
     summary = "the output's zero wanders along the record's time axis"
-    rank = 6
+    rank = 7
     listed = 6
     n_params = N_DRIFT
     record_specific = True
@@ -34,9 +34,9 @@ class OffsetDrift(AbstractEffect):
     def from_theta(self, q, theta):
         return q, [theta["drift"]]
 
-    def jax_output(self, theta, static, v, data):
+    def jax_output(self, theta, static, y, v, data):
         k = jnp.arange(1, N_DRIFT + 1)
-        return v + jnp.cos(jnp.pi * data["s"][:, None] * k[None, :]) @ theta["drift"]
+        return y + jnp.cos(jnp.pi * data["s"][:, None] * k[None, :]) @ theta["drift"]
 
     def draw(self, prng, ctx):
         d = prng.uniform(0.04, 0.1) * ctx.span0
