@@ -1,0 +1,88 @@
+"""Should `piest fit --model auto` also try the models that saturate? A measurement on the piezo records.
+
+`--model auto` chooses plain PI or PI + creep by the held-out error on the last 30 % of the
+identification record. This script fits a discrete Preisach model (16 x 16 grid, density >= 0 and
+signed, `pj.fit_preisach`) on the same first 70 % and scores it on the same last 30 %, then fits it
+on the whole record and runs it on the Aye validation run, next to the default model's raw
+validation RMSE (`pj.identify` with its defaults). If the held-out block chose the Preisach model
+where it predicts the other run worse, adding it to `auto` would hand users a model that does not
+carry over.
+
+Writes experiments/results/saturating_in_auto.json.
+Run: python experiments/saturating_in_auto.py   (~10 min on 2 cores: the default selection)
+"""
+
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+import piest_jax as pj  # noqa: E402
+
+HOLDOUT = 0.3
+GRID = (16, 16)
+
+
+def _rmse(e) -> float:
+    return float(np.sqrt(np.mean(np.square(e))))
+
+
+def preisach_scores(rec, val, monotone: bool) -> dict:
+    """The Preisach model's held-out RMSE on the record's last 30 % and, fitted on all of it,
+    its RMSE on the record and (raw, from relaxed states) on the validation run."""
+    T = len(rec.u)
+    n_fit = int(round((1 - HOLDOUT) * T))
+    mask = np.zeros(T)
+    mask[:n_fit] = 1.0
+    held = pj.fit_preisach(
+        rec.u, rec.y, n_widths=GRID[0], n_centres=GRID[1], mask=mask, monotone=monotone, covariance=None
+    )
+    out = {"heldout_rmse": _rmse(np.asarray(held.model(rec.u))[n_fit:] - rec.y[n_fit:])}
+    full = pj.fit_preisach(rec.u, rec.y, n_widths=GRID[0], n_centres=GRID[1], monotone=monotone, covariance=None)
+    out["rmse"] = float(full.rmse)
+    if val is not None:
+        out["validation_rmse"] = _rmse(np.asarray(full.model(val.u)) - val.y)
+    return out
+
+
+def main():
+    runs = {
+        "aye2018": ("piezo_aye2018_identification", "piezo_aye2018_validation"),
+        "chandra2023": ("piezo_chandra2023_1hz", None),
+    }
+    result = {"holdout": HOLDOUT, "grid": list(GRID), "records": {}}
+    for label, (name, val_name) in runs.items():
+        rec = pj.load_dataset(name)
+        val = pj.load_dataset(val_name) if val_name else None
+        t0 = time.time()
+        ident = pj.identify(rec, val)
+        sel = ident.selection
+        default = {
+            "structure": sel.structure,
+            "n_plays": sel.n_plays,
+            "n_lags": sel.n_lags,
+            "heldout_rmse": float(min(sel.scores)),
+            "rmse": float(ident.fit.rmse),
+            "seconds": time.time() - t0,
+        }
+        if ident.validation is not None:
+            default["validation_rmse"] = float(ident.validation.raw.rmse)
+        entry = {"default_auto": default}
+        for monotone in (True, False):
+            t0 = time.time()
+            entry["preisach_monotone" if monotone else "preisach_signed"] = dict(
+                preisach_scores(rec, val, monotone), seconds=time.time() - t0
+            )
+        result["records"][label] = entry
+        print(label, json.dumps(entry, indent=1), flush=True)
+    out = Path(__file__).parent / "results" / "saturating_in_auto.json"
+    out.write_text(json.dumps(result, indent=1) + "\n")
+    print(out)
+
+
+if __name__ == "__main__":
+    main()
