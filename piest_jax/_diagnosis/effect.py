@@ -58,9 +58,6 @@ class AbstractEffect:
     # Its output terms are nonlinear in v (`slope` is not None): `model.fit` keeps the best
     # Gauss-Newton iterate.
     bilinear: ClassVar[bool] = False
-    # Its output terms are functions of the centred output (`output_map.py`): the fit and the
-    # joint refinement then also find the centre they are taken about.
-    centred_output_map: ClassVar[bool] = False
 
     def __init_subclass__(cls, abstract: bool = False, **kwargs):
         super().__init_subclass__(**kwargs)

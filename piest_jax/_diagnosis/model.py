@@ -22,6 +22,7 @@ from scipy import optimize as _optimize
 
 from .basis import N_PLAYS, THRESHOLDS, plays
 from .effects import EFFECT, chain
+from .output_map import OutputMapEffect
 
 RIDGE = 1e-6
 # At most this many fits of the output map, each about the centre and half-range that the one
@@ -215,7 +216,7 @@ def fit(p, cfg, *, X=None) -> Fit:
     if not slices:
         return Fit(X, p.y, w0, w0, norm)
     best = _output_terms_fit(p, cfg, X, w0, norm)
-    if any(EFFECT[n].centred_output_map for n in slices):
+    if any(isinstance(EFFECT[n], OutputMapEffect) for n in slices):
         # The output map's terms are split by parity about the loop's centre and scaled by its
         # half-range, which the plain fit's output only approximates (an even part shifts it,
         # a saturation shrinks it): further passes take them about the centre and half-range

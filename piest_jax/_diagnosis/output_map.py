@@ -80,7 +80,6 @@ class OutputMapEffect(AbstractEffect, abstract=True):
     play_side = True
     fit_iterations = 5
     bilinear = True
-    centred_output_map = True
     # How many columns `terms` gives.
     n_terms: ClassVar[int]
 

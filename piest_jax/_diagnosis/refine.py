@@ -31,7 +31,7 @@ from .._operators.play import play
 from .basis import N_PLAYS, THRESHOLDS
 from .effects import EFFECT, chain
 from .model import coefficient_slices
-from .output_map import CENTRE
+from .output_map import CENTRE, OutputMapEffect
 from .scaling import Prepared
 
 # The static shape of a configuration: (effect name, static form) pairs in chain order, which
@@ -202,7 +202,7 @@ def refine(
     check_solver(solver)
     st = structure(cfg)
     theta0 = initial_params(cfg, w, p.signed)
-    if any(e.centred_output_map for e in chain(cfg)):
+    if any(isinstance(e, OutputMapEffect) for e in chain(cfg)):
         theta0[CENTRE] = jnp.asarray(float(norm[0]))
     data, y, mask = data_of(p, norm)
     theta, result, steps, loss0, loss = _solve(
