@@ -157,10 +157,11 @@ def main():
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
 
+    meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed, noise_ar=a.noise_ar)
+
     def save(rows, secs):
         stats = summarise(rows)
         md = markdown(stats)
-        meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed, noise_ar=a.noise_ar)
         out.write_text(
             json.dumps(
                 dict(**meta, seconds=secs, n_records=len(rows), totals=totals(rows), stats=stats, rows=rows, table=md),
@@ -171,6 +172,11 @@ def main():
 
     if a.merge is not None:
         parts = [json.loads(Path(p).read_text()) for p in a.merge]
+        # The study's settings are the shards' (this command's own options do not apply).
+        metas = [{k: p[k] for k in meta} for p in parts]
+        if any(m != metas[0] for m in metas):
+            ap.error(f"the shards were run with different settings: {metas}")
+        meta = metas[0]
         rows = [r for p in parts for r in p["rows"]]
         md = save(rows, sum(p["seconds"] for p in parts))
     else:

@@ -80,6 +80,22 @@ def test_generator_is_reproducible_and_checks_names():
         _hidden.generate(("magic",), key=key)
 
 
+def test_generated_delay_is_a_fraction_of_the_record():
+    # A delay drawn in samples would shrink against the input's cycle as records grow, until no
+    # length's naming bar could see it; drawn as a fraction of the record, it is the same phase lag
+    # at every length (the draws are the same: the effect's seed does not depend on the length).
+    key = jax.random.PRNGKey(11)
+
+    def delay_samples(n):
+        form = _hidden.generate(("delay",), key=key, n_samples=n)[1]["forms"]["delay"]
+        return float(form.split("by ")[1].split()[0])
+
+    short = delay_samples(500)
+    assert 1.5 <= short <= 8.0
+    for n in (200, 5000):  # the forms print two decimals: each side is off by up to 0.005
+        assert delay_samples(n) == pytest.approx(n / 500 * short, abs=0.005 * (1 + n / 500))
+
+
 def test_generator_coloured_noise():
     from scipy.signal import lfilter
 

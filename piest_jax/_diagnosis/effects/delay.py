@@ -27,6 +27,10 @@ def delayed_jax(v, d):
     return (1 - f) * a + f * b
 
 
+# The record length at which the generator's delays are drawn in samples (`Delay.draw`).
+DRAW_SAMPLES = 500
+
+
 class Delay(AbstractEffect):
     """A pure delay of d seconds, fractional, applied to the play columns: X(t - d)."""
 
@@ -60,7 +64,10 @@ class Delay(AbstractEffect):
         return delayed_jax(v, jnp.exp(theta["log_delay"]) / data["dt"])
 
     def draw(self, prng, ctx):
-        d = prng.uniform(1.5, 8.0) * ctx.dt
+        # 1.5 to 8 samples of a 500-sample record, the same fraction of the input's cycle (2 to
+        # 20 %) at any length: a delay of a fixed number of samples would shrink against the
+        # cycle as records grow, below what any length's naming bar is meant to find.
+        d = prng.uniform(1.5, 8.0) * ctx.dt * (len(ctx.t) / DRAW_SAMPLES)
         return {"form": f"input delayed by {d / ctx.dt:.2f} samples", "d": d}
 
     def synth_input(self, state, ctx, chain):
