@@ -147,6 +147,19 @@ def near_top_record(T=700, seed=0):
     return u, y, r
 
 
+def test_scales_of_the_relative_error_limit():
+    names = ("thresholds[1]", "thresholds[2]", "weights[0]", "offset", "creep.time_constants[0]")
+    names += ("creep.weights[0]", "creep.weights[1]", "initial_states[1]")
+    values = (0.3, 0.9, 5.0, -0.2, 20.0, 3.0, 0.01, 0.5)
+    got = _cov.scales(names, values, u_half=1.2, y_half=0.6)
+    slope = 0.6 / 1.2
+    # Threshold: the room below it or up to the top of the input's half range; a play weight: the
+    # slope, however large the weight; a creep weight: the slope or its own size, the larger (a lag
+    # slower than the record drifts with a weight well above the slope, known to a fraction of it).
+    want = (0.3, 1.2 - 0.9, slope, 0.6, 20.0, 3.0, slope, 1.2)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
 def test_play_at_the_top_of_the_range_is_undetermined():
     u, y, r = near_top_record()
     f = pj.fit_pi(u, y, 3, thresholds0=r, n_starts=1)

@@ -23,8 +23,9 @@ more than `NULL_SHARE` in the dropped directions is undetermined, its standard e
 the covariance is the pseudo-inverse's, i.e. that of the determined combinations. A parameter is
 also undetermined when its standard error exceeds `RELATIVE_LIMIT` (0.5: its 95 % interval
 reaches past its scale) of its scale: |value| for time constants; the model's overall slope
-y_half/u_half for play and creep weights (a weight estimated near zero with a small error is
-determined to be small); for a threshold the
+y_half/u_half for play weights (a weight estimated near zero with a small error is
+determined to be small), and the larger of that slope and |value| for creep weights (a lag
+slower than the record acts as a slow drift whose weight may well exceed the slope); for a threshold the
 room it has, the distance to its lower neighbour or to the top of the input's half range,
 whichever is smaller (a play whose threshold may lie beyond the input's reach is not known to
 move); half the output range for the offset, half the input range for initial states.
@@ -408,6 +409,13 @@ def scales(names, values, u_half, y_half):
             out[i] = y_half
         elif "initial_states" in n:
             out[i] = u_half
+        elif n.startswith("creep.weights"):
+            # A lag's weight is its share of the response to a step held for ever, which a lag
+            # slower than the record never shows: a slow lag is a slow drift of the output with
+            # a weight well above the slope. Either scale judges it (a weight near zero with a
+            # small error is determined to be small; a large one known to a fraction of itself
+            # is determined too).
+            out[i] = max(y_half / u_half, abs(v))
         elif "weights" in n:
             # A weight's scale is the model's overall slope, not its own size: a weight estimated
             # near zero with a small error is determined (to be small), not undetermined.
