@@ -159,12 +159,14 @@ def main():
 
     meta = dict(per_class=a.per_class, pairs=a.pairs, samples=a.samples, seed=a.seed, noise_ar=a.noise_ar)
 
-    def save(rows, secs):
+    def save(rows, secs, settings=meta):
         stats = summarise(rows)
         md = markdown(stats)
         out.write_text(
             json.dumps(
-                dict(**meta, seconds=secs, n_records=len(rows), totals=totals(rows), stats=stats, rows=rows, table=md),
+                dict(
+                    **settings, seconds=secs, n_records=len(rows), totals=totals(rows), stats=stats, rows=rows, table=md
+                ),
                 indent=1,
             )
         )
@@ -176,9 +178,8 @@ def main():
         metas = [{k: p[k] for k in meta} for p in parts]
         if any(m != metas[0] for m in metas):
             ap.error(f"the shards were run with different settings: {metas}")
-        meta = metas[0]
         rows = [r for p in parts for r in p["rows"]]
-        md = save(rows, sum(p["seconds"] for p in parts))
+        md = save(rows, sum(p["seconds"] for p in parts), metas[0])
     else:
         i, k = (int(x) for x in a.shard.split("/"))
         rows = run(a, i, k, save)

@@ -87,7 +87,7 @@ class Saturation(OutputMapEffect):
     def static(self, q):
         # Whether the input envelope is there: its strength is refined on a log scale, which
         # cannot start from 0.
-        return q[0] > 0
+        return self.changes_plays(q)
 
     def init_theta(self, q, coef):
         k, c = q
