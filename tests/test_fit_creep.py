@@ -313,3 +313,38 @@ def test_creep_only_search_chooses_the_plays_without_creep():
     assert plain == [1, 2, 3][: len(plain)] and ch.n_plays in plain
     assert ch.structure == "pi+creep" and ch.n_lags == 1 and ch.n_plays == len(R)
     assert all(c[1] in (0, 1) for c in ch.candidates)
+
+
+def test_creep_search_walks_the_play_count_down_beside_a_lag():
+    # Two plays and a lag. Without creep, more plays imitate the creep (the plain search keeps 3);
+    # beside the lag the extra play keeps almost no weight and its threshold is free. The search
+    # walks the play count down with the lag until the record determines every parameter.
+    r, w = np.array([0.0, 0.8]), np.array([1.0, 0.5])
+    u = signal()
+    y = reference_pi(u, r, w, u[0]) + reference_lags(u, TAU, DT, u[0]) @ C + 0.3
+    y = y + 1e-3 * np.random.default_rng(3).standard_normal(T)
+    ch = pj.select_model(u, y, DT, plays=(1, 2, 3, 4), lags=(0, 1, 2), key=jax.random.key(0))
+    one_lag = [c for c in ch.candidates if c[1] == 1]
+    assert one_lag == [(3, 1), (2, 1)] and (3, 1) in ch.rejected
+    assert (ch.n_plays, ch.n_lags) == (2, 1) and ch.fit.determined
+
+
+def test_what_the_record_determines_is_judged_on_all_of_it():
+    # The second play moves only in the held-out block: fitted before it, its threshold and weight
+    # are free; fitted on the whole record, determined. The candidate is not rejected.
+    n = 1000
+    t = np.arange(n) / n
+    u = np.where(t < 0.7, 0.3, 2.5) * np.sin(2 * np.pi * 8 * t)
+    y = reference_pi(u, np.array([0.0, 0.5]), np.array([1.0, 0.6]), 0.0)
+    y = y + 1e-3 * np.random.default_rng(0).standard_normal(n)
+    opts = dict(key=jax.random.key(0), initial_states=0.0)
+    part = np.zeros(n)
+    part[: round(0.7 * n)] = 1.0
+    assert not pj.fit_pi(u, y, 2, mask=part, pad_plays=2, **opts).determined
+    assert pj.fit_pi(u, y, 2, pad_plays=2, **opts).determined
+    # (With no tolerance, so that its small gain counts: one that could not be chosen anyway is
+    # not judged again.)
+    a = pj.select_plays(u, y, (1, 2), patience=None, tolerance=0.0, **opts)
+    b = pj.select_model(u, y, 1.0 / n, (1, 2), (0,), tolerance=0.0, **opts)
+    assert a.candidates == (1, 2) and a.rejected == () and a.scores[1] < a.scores[0]
+    assert b.candidates == ((1, 0), (2, 0)) and b.rejected == ()

@@ -6,8 +6,9 @@ through from the states the first part left it in. A structure whose parameters 
 cannot determine (a lag slower than the record, plays the input barely moves) predicts the
 held-out block badly and loses; among candidates within `tolerance` of the best score the smaller
 wins, so the record has to show the gain of every added parameter. A candidate whose fit leaves
-a parameter undetermined (`PIFit.determined`) is never chosen, as in [`select_plays`][]; nor is
-one whose whole-record fit does (the next in line is taken then).
+a parameter undetermined (`PIFit.determined`) is never chosen, as in [`select_plays`][] (judged,
+as there, on the whole stretch, held-out block included); nor is one whose whole-record fit does
+(the next in line is taken then).
 
 The search is coordinate-wise, to keep the number of fits small (each costs a full nonlinear
 fit): (1) the play count of the plain PI model, as [`select_plays`][] does, also when only
@@ -16,8 +17,13 @@ loops that further plays would shape, and the search would stop at one play); (2
 at that play count among those offered, from the fewest up, stopping after `patience` in a
 row that do not improve (an undetermined candidate counts as not improving, but does not end the
 search by itself: one lag fitted to a creep of two modes can land on a poorly determined
-compromise that two lags resolve). The play count is not searched again with the chosen lags: that would double the
-cost, and a creep rarely makes plays that improved the held-out error useless. Every candidate
+compromise that two lags resolve). A lag takes over part of what the plays shaped: the play count
+chosen without creep can leave a play with almost no weight beside a lag, and its threshold
+undetermined. So a candidate (n, K) rejected as undetermined that would have beaten the best
+score yet stands aside for (n', K), n' the next play count down, until one is determined; when
+the chosen model's whole-record fit is undetermined, the same walk down adds the next smaller
+play count with its lags to the line before the next in line is taken. The play count is not
+otherwise searched again with the chosen lags: that would double the cost. Every candidate
 is padded to the largest play and lag counts on records of up to `SHARED_UP_TO` samples, so that
 all share one compilation. On a long record the candidates are fitted and scored on its first
 stretch, as in [`select_plays`][] (`holdout_split`), and the chosen model on every sample.
@@ -115,6 +121,8 @@ def select_model(
     floor = 1e-8 * max(float(np.std(fitted)), 1e-6 * float(np.max(np.abs(fitted))), 1e-300)
     scores: dict = {}
     rejected: set = set()
+    pending: set = set()  # undetermined on the part before the held-out block, not yet on all
+    whole: dict = {}  # candidates fitted on the whole record on the way (S == T)
     bar = progress(None, desc="models", quiet=quiet)
 
     def fit_one(n, k, m, stretch=T):
@@ -128,23 +136,49 @@ def select_model(
             scores[(n, k)] = float(np.sqrt(np.mean((pred[test] - yn[test]) ** 2)))
             if not f.determined:
                 rejected.add((n, k))
+                pending.add((n, k))
             if hasattr(bar, "update"):
                 bar.update(1)
         return scores[(n, k)]
 
+    def admit(c, s, best):
+        """Whether candidate `c` (score `s`) may be chosen; one undetermined on the part before
+        the held-out block that would beat `best` is judged on the whole stretch first (see the
+        module notes; one that would not is not worth the fit)."""
+        if c in pending and s < best * (1 - tolerance) - floor:
+            pending.discard(c)
+            f = fit_one(*c, mask if S == T else used[:S], S)
+            if S == T:
+                whole[c] = f
+            if f.determined:
+                rejected.discard(c)
+        return c not in rejected
+
     def search(values, wait, make):
-        """The smallest value within tolerance of the best, trying values from the smallest up."""
+        """The smallest candidate within tolerance of the best, trying values from the smallest
+        up (`make(v, best)` gives the candidate that stands for v, given the best score yet)."""
         tried, best, since = [], np.inf, 0
         for v in values:
-            s = score(*make(v))
-            tried.append((v, s))
-            if make(v) not in rejected and s < best * (1 - tolerance) - floor:
+            c = make(v, best)
+            s = score(*c)
+            tried.append((c, s))
+            if admit(c, s, best) and s < best * (1 - tolerance) - floor:
                 best, since = s, 0
             else:
                 since += 1
                 if since >= wait:
                     break
-        return pick([(make(v), s) for v, s in tried])
+        return pick(tried)
+
+    def settle(n, k, best=np.inf):
+        """(m, k) with m the most plays, up to n among those offered, that the record determines
+        alongside k lags, walking down only while the undetermined candidate would have beaten
+        `best`; the last one tried otherwise (see the module notes)."""
+        for m in [p for p in plays if p <= n][::-1]:
+            s = score(m, k)
+            if admit((m, k), s, best) or s >= best * (1 - tolerance) - floor:
+                return m, k
+        return m, k
 
     def pick(pairs):
         """The smallest candidate within tolerance of the best not rejected (else the first)."""
@@ -152,16 +186,21 @@ def select_model(
         best = min(s for _, s in ok)
         return next(c for c, s in ok if s <= best * (1 + tolerance) + floor)
 
-    n, _ = search(plays, patience, lambda v: (v, 0))
-    n, k = search(lags, patience, lambda v: (n, v))
-    if hasattr(bar, "close"):
-        bar.close()
+    n, _ = search(plays, patience, lambda v, best: (v, 0))
+    n, k = search(lags, patience, lambda v, best: settle(n, v, best))
     while True:
-        fit = fit_one(n, k, mask)
-        left = [(c, scores[c]) for c in scores if c not in rejected and c != (n, k) and c[1] in lags]
-        if fit.determined or not left:
+        fit = whole[(n, k)] if (n, k) in whole else fit_one(n, k, mask)
+        if fit.determined:
             break
         rejected.add((n, k))
+        fewer = [m for m in plays if m < n]
+        if fewer:
+            settle(fewer[-1], k)
+        left = [(c, scores[c]) for c in scores if c not in rejected and c[1] in lags]
+        if not left:
+            break
         n, k = pick(left)
+    if hasattr(bar, "close"):
+        bar.close()
     cands = tuple(scores)
     return ModelChoice(n, k, cands, tuple(scores[c] for c in cands), fit, tuple(c for c in cands if c in rejected), S)
