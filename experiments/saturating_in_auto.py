@@ -82,7 +82,8 @@ def main():
             "structure": sel.structure,
             "n_plays": sel.n_plays,
             "n_lags": sel.n_lags,
-            "heldout_rmse": float(min(sel.scores)),
+            # The chosen candidate's score (a better one may have been rejected as undetermined).
+            "heldout_rmse": float(dict(zip(sel.candidates, sel.scores))[(sel.n_plays, sel.n_lags)]),
             "rmse": float(ident.fit.rmse),
             "seconds": time.time() - t0,
         }

@@ -3,8 +3,10 @@
 The same blocked hold-out as [`select_plays`][]: each candidate (n plays, K lags) is fitted on the
 first part of the record and scored by its RMSE on the held-out last block, which the model runs
 through from the states the first part left it in. A structure whose parameters the fitted part
-cannot determine (a lag slower than the record, plays the input barely moves) predicts the
-held-out block badly and loses; among candidates within `tolerance` of the best score the smaller
+cannot determine (plays the input barely moves) mostly predicts the held-out block badly and
+loses; one that predicts it well all the same (a lag slower than the fitted part, whose weight
+over its time constant is all that part shows and all the block needs) may be determined by the
+whole stretch, as below. Among candidates within `tolerance` of the best score the smaller
 wins, so the record has to show the gain of every added parameter. A candidate whose fit leaves
 a parameter undetermined (`PIFit.determined`) is never chosen, as in [`select_plays`][] (judged,
 as there, on the whole stretch, held-out block included); nor is one whose whole-record fit does
