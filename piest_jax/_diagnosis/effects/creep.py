@@ -12,6 +12,9 @@ from ..effect import AbstractEffect
 N_CREEP = 5  # creep modes, log-spaced from a third of the input's period to the record's length
 
 
+# Compiled once per shape: the search calls it thousands of times on NumPy arrays, where each
+# eager call would trace the scan again (a third of a search's time, for the same numbers).
+@jax.jit
 def lowpass(v, lam):
     """First-order low-pass y_t = lam y_t-1 + (1 - lam) v_t from rest at v_0, `lam` (k,) -> (T, k).
 
