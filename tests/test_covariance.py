@@ -180,6 +180,15 @@ def test_model_size_never_keeps_an_undetermined_parameter():
         assert sel.n_plays == 2 and sel.fit.determined and sel.fit.undetermined_names == ()
 
 
+def test_the_only_candidate_is_kept_undetermined_and_not_listed_as_rejected():
+    # With nothing else to offer, the choice keeps the undetermined model (its fit says so) and
+    # `rejected` lists only candidates not chosen.
+    u, y, _ = near_top_record()
+    ch = pj.select_model(u, y, 0.005, (3,), (0,), key=jax.random.key(0))
+    assert (ch.n_plays, ch.n_lags) == (3, 0) and ch.rejected == ()
+    assert not ch.fit.determined and "thresholds[2]" in ch.fit.undetermined_names
+
+
 @pytest.mark.parametrize("method", _cov.METHODS)
 def test_calibration_over_noise_draws(method):
     # 200 white-noise draws: the sample standard deviation of each estimate is then known to

@@ -200,6 +200,7 @@ def select_model(
             settle(fewer[-1], k)
         left = [(c, scores[c]) for c in scores if c not in rejected and c[1] in lags]
         if not left:
+            rejected.discard((n, k))  # kept, undetermined, for want of another: not rejected
             break
         n, k = pick(left)
     if hasattr(bar, "close"):
