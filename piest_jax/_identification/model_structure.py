@@ -149,7 +149,7 @@ def select_model(
         module notes; one that would not is not worth the fit)."""
         if c in pending and s < best * (1 - tolerance) - floor:
             pending.discard(c)
-            f = fit_one(*c, mask if S == T else used[:S], S)
+            f = fit_one(c[0], c[1], mask if S == T else used[:S], S)
             if S == T:
                 whole[c] = f
             if f.determined:
