@@ -150,7 +150,7 @@ def confusion():
             rec, truth = _hidden.generate(cls, key=pj.hidden_effect_key(key, cls, i), n_samples=N_SAMPLES)
             # Naming does not depend on the final joint refinement (tests/test_refine.py), and
             # the refinement is only kept when it lowers the error: the grid fit is the bound.
-            s = _diagnose.search(rec, solver=None)
+            s = _diagnose.search(rec, solver=None, uncertainty=False)
             _, rmse = _diagnose.evaluate(rec, s["scaling"], s["model_final"])
             rows.append((cls, s["effects"], rmse / truth["noise_std"], truth["forms"]))
     return rows

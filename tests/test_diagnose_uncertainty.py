@@ -37,6 +37,15 @@ def test_the_jacobian_is_the_models_derivative(delayed):
         np.testing.assert_allclose(J[:, i], (up - down) / (2 * h), rtol=1e-5, atol=1e-7)
 
 
+def test_without_the_errors_the_search_is_the_same(delayed):
+    rec, s = delayed
+    quick = _diagnose.search(rec, max_effects=1, candidates=["delay"], uncertainty=False)
+    assert quick["uncertainty"] is None and s["uncertainty"] is not None
+    assert quick["effects"] == s["effects"] == ["delay"]
+    assert quick["model_final"]["cfg"] == s["model_final"]["cfg"]
+    np.testing.assert_array_equal(quick["model_final"]["coef"], s["model_final"]["coef"])
+
+
 def test_the_report_gives_the_named_effects_errors(delayed):
     rec, s = delayed
     u = s["uncertainty"]

@@ -231,8 +231,8 @@ def test_saturating_terms_follow_saturation_curves_where_odd_powers_do_not():
         for k in strengths:
             curve, _ = EFFECT["saturation"].synth_output({"form": form, "k": k}, ctx, z, z.copy())
             for name, cols in (
-                ("tanh", _output_map.saturating(z, (0.0, 1.0), _saturation.RATES)[0]),
-                ("powers", _output_map.powers(z, (0.0, 1.0), (3, 5))[0]),
+                ("tanh", _output_map.saturating(z, (0.0, 1.0), _saturation.RATES)),
+                ("powers", _output_map.powers(z, (0.0, 1.0), (3, 5))),
             ):
                 A = np.column_stack([z, np.ones_like(z), cols])
                 res = A @ np.linalg.lstsq(A, curve, rcond=None)[0] - curve
@@ -369,7 +369,23 @@ def test_a_record_of_one_repeated_loop_does_not_try_noncongruence():
     H = _basis.plays(u, _basis.THRESHOLDS, np.zeros((1, _basis.N_PLAYS)))[0]
     y = H @ np.linspace(1.0, 0.2, _basis.N_PLAYS) + 0.3 * H[:, 8] ** 2
     y = y + np.random.default_rng(0).normal(0, 1e-3, len(t))
-    s = _diagnose.search(Record(t, u, y), candidates=("asymmetry", "minor_loop_noncongruence"), solver=None)
+    s = _diagnose.search(
+        Record(t, u, y), candidates=("asymmetry", "minor_loop_noncongruence"), solver=None, uncertainty=False
+    )
     assert "minor_loop_noncongruence" in s["rounds"][0]["untried"]
     assert all("minor_loop_noncongruence" not in r["candidates"] for r in s["rounds"])
     assert "asymmetry" in s["rounds"][0]["candidates"]
+
+
+@pytest.mark.parametrize("name", ["asymmetry", "saturation"])
+def test_output_map_slopes_are_the_derivatives_of_its_terms(name):
+    # The Gauss-Newton steps of `model.fit` rest on them; central differences are the reference.
+    e = EFFECT[name]
+    norm = (0.3, 1.7)
+    v = np.linspace(-2.0, 2.6, 301)  # beyond the powers' held range on both sides
+    h = 1e-6
+    fd = (e.terms(v + h, norm) - e.terms(v - h, norm)) / (2 * h)
+    raw = np.abs((v - norm[0]) / norm[1])
+    away = np.abs(raw - _output_map.POLY_RANGE) > 1e-3  # the held range's kink has no derivative
+    np.testing.assert_allclose(e.term_slopes(v, norm)[away], fd[away], rtol=1e-6, atol=1e-8)
+    assert e.terms(v, norm).shape == e.term_slopes(v, norm).shape == (len(v), e.n_terms)

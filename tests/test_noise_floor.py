@@ -87,7 +87,7 @@ def test_single_effect_under_ar1_noise_is_named_exactly(effect, seed):
     # AR(1) sensor noise (phi = 0.9) reads about 0.3x its std on the 7-sample floor; judged
     # against that, both records also got `offset_drift`, a fit to the slow noise.
     rec, truth = _hidden.generate((effect,), key=jax.random.PRNGKey(seed), n_samples=1200, noise_ar=0.9)
-    s = _diagnose.search(rec, solver=None)
+    s = _diagnose.search(rec, solver=None, uncertainty=False)
     assert s["effects"] == [effect]
     seven = _scaling.noise_std(rec.y)
     assert seven < 0.35 * truth["noise_std"]

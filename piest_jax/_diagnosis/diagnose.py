@@ -216,6 +216,7 @@ def search(
     candidates=EFFECTS,
     refit: bool = True,
     solver: str | None = "lm",
+    uncertainty: bool = True,
     quiet: bool = True,
 ):
     """Run the naming loop on one identification record.
@@ -228,6 +229,8 @@ def search(
     - `refit`: fit the final weights on the full-rate record (otherwise on the search's samples).
     - `solver`: refine the base and the final model jointly with this optimistix solver
       (`_refine.refine`: `"lm"`, `"gn"` or `"bfgs"`), or None to keep the variable-projection fit.
+    - `uncertainty`: compute the named effects' standard errors (False: `uncertainty` is None,
+      for studies that read only the names and errors; it compiles the model's Jacobian).
     - `quiet`: no progress bar (it shows only on a terminal anyway).
 
     **Returns:** a dict with `effects` (named, in order), `pruned`, `rounds` (each candidate's
@@ -325,7 +328,7 @@ def search(
             dict(cfg=c, coef=f.w, coef_v=f.w_v, norm=f.norm) if solver is None else _refined(full, thin, c, f, solver)
         )
     # The named effects' standard errors, on the samples the refinement ran on.
-    uncertainty = _uncertainty.parameter_uncertainty(thin, models["model_final"], sc) if cfg else None
+    errors = _uncertainty.parameter_uncertainty(thin, models["model_final"], sc) if cfg and uncertainty else None
     return dict(
         effects=named,
         pruned=pruned,
@@ -335,7 +338,7 @@ def search(
         step=step,
         heldout_rmse_base=float(np.sqrt(base_mse)) * sc.y_half,
         heldout_rmse_final=float(np.sqrt(final_mse)) * sc.y_half,
-        uncertainty=uncertainty,
+        uncertainty=errors,
         loop=loop,
         **models,
     )

@@ -27,21 +27,31 @@ CENTRE = "poly_centre"
 
 
 def powers(v, norm, exponents):
-    """The columns [vc^k for k in exponents] (T, len(exponents)) and their derivatives in v."""
+    """The columns [vc^k for k in exponents] (T, len(exponents))."""
+    vc = np.clip((v - norm[0]) / norm[1], -POLY_RANGE, POLY_RANGE)
+    return np.column_stack([vc**k for k in exponents])
+
+
+def power_slopes(v, norm, exponents):
+    """The derivatives in v of `powers`' columns (T, len(exponents)): 0 where they are held."""
     raw = (v - norm[0]) / norm[1]
     vc = np.clip(raw, -POLY_RANGE, POLY_RANGE)
-    cols = np.column_stack([vc**k for k in exponents])
     der = np.column_stack([k * vc ** (k - 1) for k in exponents]) / norm[1]
-    return cols, der * (np.abs(raw) < POLY_RANGE)[:, None]
+    return der * (np.abs(raw) < POLY_RANGE)[:, None]
 
 
+# Columns and derivatives are separate functions: the search evaluates the columns several times
+# as often as the slopes, on records of every candidate, so neither pays for the other.
 def saturating(v, norm, rates):
-    """The columns [tanh(k vc) / k - vc for k in rates] and their derivatives in v."""
+    """The columns [tanh(k vc) / k - vc for k in rates] (T, len(rates))."""
     vc = (v - norm[0]) / norm[1]
-    t = [np.tanh(k * vc) for k in rates]
-    cols = np.column_stack([ti / k - vc for ti, k in zip(t, rates)])
-    der = np.column_stack([-(ti**2) for ti in t]) / norm[1]  # sech^2 - 1
-    return cols, der
+    return np.column_stack([np.tanh(k * vc) / k - vc for k in rates])
+
+
+def saturating_slopes(v, norm, rates):
+    """The derivatives in v of `saturating`'s columns (T, len(rates)): sech^2 - 1 = -tanh^2."""
+    vc = (v - norm[0]) / norm[1]
+    return np.column_stack([-(np.tanh(k * vc) ** 2) for k in rates]) / norm[1]
 
 
 def _centred(v, theta, norm):
@@ -84,17 +94,21 @@ class OutputMapEffect(AbstractEffect, abstract=True):
     n_terms: ClassVar[int]
 
     def terms(self, v, norm):
-        """The columns (T, n_terms) at the hysteresis output `v` and their derivatives in v."""
+        """The columns (T, n_terms) at the hysteresis output `v`."""
+        raise NotImplementedError
+
+    def term_slopes(self, v, norm):
+        """The derivatives in v of `terms`' columns (T, n_terms)."""
         raise NotImplementedError
 
     def n_columns(self, q):
         return self.n_terms
 
     def columns(self, q, p, v, drive, norm):
-        return self.terms(v, norm)[0]
+        return self.terms(v, norm)
 
     def drive(self, q, drive, v0, norm, coef):
-        return drive + self.terms(v0, norm)[0] @ coef
+        return drive + self.terms(v0, norm) @ coef
 
     def slope(self, q, v, norm, coef):
-        return self.terms(v, norm)[1] @ coef
+        return self.term_slopes(v, norm) @ coef

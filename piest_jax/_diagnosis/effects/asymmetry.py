@@ -7,7 +7,7 @@ them. An output that bends both ends alike is the saturation effect's.
 
 import numpy as np
 
-from ..output_map import OutputMapEffect, jax_powers, powers, synth_output_map
+from ..output_map import OutputMapEffect, jax_powers, power_slopes, powers, synth_output_map
 
 # The output polynomial's powers: the even ones, the part of an output map that breaks the
 # loop's point symmetry (the odd ones are the saturation effect's).
@@ -42,6 +42,9 @@ class Asymmetry(OutputMapEffect):
 
     def terms(self, v, norm):
         return powers(v, norm, POWERS)
+
+    def term_slopes(self, v, norm):
+        return power_slopes(v, norm, POWERS)
 
     def init_theta(self, q, coef):
         return {"envelope": np.asarray(float(q)), "poly": coef}

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..effect import refinement_factor
-from ..output_map import OutputMapEffect, jax_saturating, saturating, synth_output_map
+from ..output_map import OutputMapEffect, jax_saturating, saturating, saturating_slopes, synth_output_map
 
 # The output terms tanh(k vc) / k - vc: a mild and a strong flattening (with the linear term,
 # they follow the generator's saturation curves to within 0.1 % of the range, RMS).
@@ -83,6 +83,9 @@ class Saturation(OutputMapEffect):
 
     def terms(self, v, norm):
         return saturating(v, norm, RATES)
+
+    def term_slopes(self, v, norm):
+        return saturating_slopes(v, norm, RATES)
 
     def static(self, q):
         # Whether the input envelope is there: its strength is refined on a log scale, which
