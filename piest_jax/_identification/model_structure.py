@@ -25,9 +25,14 @@ undetermined. So a candidate (n, K) rejected as undetermined that would have bea
 score yet stands aside for (n', K), n' the next play count down, until one is determined; when
 the chosen model's whole-record fit is undetermined, the same walk down adds the next smaller
 play count with its lags to the line before the next in line is taken. The play count is not
-otherwise searched again with the chosen lags: that would double the cost. Every candidate
-is padded to the largest play and lag counts on records of up to `SHARED_UP_TO` samples, so that
-all share one compilation. On a long record the candidates are fitted and scored on its first
+otherwise searched again with the chosen lags: that would double the cost. On records of up to
+`SHARED_UP_TO` samples the candidates share compilations by padding with inactive plays and lags
+(`fit_pi`'s `pad_plays`, `pad_lags`) in two groups: the plain ones to the largest play count, as
+in [`select_plays`][], and those with creep to the chosen play count and the largest lag count.
+Padding every candidate to both largest counts, one compilation in all, cost more in solves than
+it saved in compiling (float64, two cores, compilation included: Aye's 8027 samples 68 s against
+45 s now, the 10^4-sample creep record 46 s against 35 s, 2000 samples 21 s against 16 s; equal
+at 500). On a long record the candidates are fitted and scored on its first
 stretch, as in [`select_plays`][] (`holdout_split`), and the chosen model on every sample.
 """
 
@@ -115,7 +120,8 @@ def select_model(
         raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
     S, split, test = holdout_split(used, holdout)
     shared = S <= SHARED_UP_TO
-    pad = dict(pad_plays=max(plays), pad_lags=max(lags)) if shared else {}
+    # The most plays a creep candidate has: the plain model's count once it is chosen.
+    creep_plays = max(plays)
     yn = np.asarray(y[:S])
     # Scores closer than this are rounding, not a gain (a noise-free record fits to ~1e-12 of
     # its spread; a flat one to ~1e-16 of its level).
@@ -128,7 +134,12 @@ def select_model(
     bar = progress(None, desc="models", quiet=quiet)
 
     def fit_one(n, k, m, stretch=T):
-        kw = dict(pad) if shared else dict(pad_plays=None, pad_lags=None)
+        if not shared:
+            kw: dict = dict(pad_plays=None, pad_lags=None)
+        elif k == 0:
+            kw = dict(pad_plays=max(plays), pad_lags=None)
+        else:
+            kw = dict(pad_plays=max(n, creep_plays), pad_lags=max(lags))
         return fit_pi(u[:stretch], y[:stretch], n, n_lags=k, dt=dt, mask=m, **kw, **fit_kwargs)
 
     def score(n, k):
@@ -189,6 +200,7 @@ def select_model(
         return next(c for c, s in ok if s <= best * (1 + tolerance) + floor)
 
     n, _ = search(plays, patience, lambda v, best: (v, 0))
+    creep_plays = n
     n, k = search(lags, patience, lambda v, best: settle(n, v, best))
     while True:
         fit = whole[(n, k)] if (n, k) in whole else fit_one(n, k, mask)
