@@ -5,6 +5,7 @@ record with the last block held out (blocked, not random, so that neighbouring a
 samples never sit on both sides of the split); the model still runs through the held-out block, so
 the plays' states carry over, and its RMSE there is the score. The smallest n whose score is within
 `tolerance` of the best is chosen, since a larger model that is not measurably better only fits noise.
+This search is [`select_model`][]'s with no lags offered, so the rules below are written once, there.
 **BIC**: T ln(MSE) + k ln T on the whole record (T its used samples), k = 2n + 1 parameters
 (3n + 1 with fitted initial states), minimised.
 
@@ -21,13 +22,9 @@ a parameter the record does not pin down (a play at the top of the input's range
 moves, say) makes the model's predictions on other records arbitrary. What the record determines
 is judged on all of it, not on the part left before the held-out block: a candidate undetermined
 there whose score would improve on the best is fitted again on the whole stretch (held-out block
-included; on a record no longer than the stretch that is the final fit, kept for it) and
-rejected only if that fit leaves a parameter undetermined too (one that would not improve is
-not worth the fit: it could not be chosen). A slow creep lag is the case in point: on the first
-70 % of the Chandra piezo record's first 7 s a 23 s lag shows only its weight over its time
-constant; on all 7 s it shows both. Its score stays the first fit's. Rejected candidates are
-listed in `rejected`; if the chosen model fitted on the whole record turns out undetermined,
-the next candidate in line is taken.
+included) and rejected only if that fit leaves a parameter undetermined too. Rejected
+candidates are listed in `rejected`; if the chosen model fitted on the whole record turns out
+undetermined, the next candidate in line is taken (BIC, which fits the whole record, the same).
 
 Candidates are tried from the smallest up, and the search stops once `patience` candidates in a
 row have not improved the best score (by more than `tolerance` for held-out error); the larger
@@ -190,47 +187,59 @@ def select_plays(
     used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
     if used.shape != (T,):
         raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
-    S, split, test = holdout_split(used, holdout) if criterion == "holdout" else (T, None, None)
+    if criterion == "holdout":
+        # One selection rule: the held-out search is `select_model`'s with no lags offered.
+        # (Imported here: that module builds on this one's split.)
+        from .model_structure import select_model
 
-    def fit_n(n, stretch=T, **kw):
-        return fit_pi(u[:stretch], y[:stretch], n, pad_plays=padded_plays(n, largest, stretch), **kw, **fit_kwargs)
+        ch = select_model(
+            u,
+            y,
+            1.0,
+            cands,
+            (0,),
+            holdout=holdout,
+            tolerance=tolerance,
+            patience=patience,
+            quiet=quiet,
+            mask=mask,
+            **fit_kwargs,
+        )
+        return ModelSize(
+            ch.n_plays,
+            tuple(n for n, _ in ch.candidates),
+            ch.scores,
+            criterion,
+            ch.fit,
+            tuple(n for n, _ in ch.rejected),
+            ch.selection_samples,
+        )
+
+    def fit_n(n):
+        return fit_pi(u, y, n, pad_plays=padded_plays(n, largest, T), mask=mask, **fit_kwargs)
 
     n_used = int(np.sum(used > 0))
     since_best = 0
     rejected: set = set()
     bar = progress(cands, desc="plays", quiet=quiet)
     for n in bar:
-        if criterion == "holdout":
-            f = fit_n(n, S, mask=split * used[:S])
-            pred = np.asarray(f(u[:S]))
-            score = float(np.sqrt(np.mean((pred[test] - np.asarray(y[:S])[test]) ** 2)))
-        else:
-            f = fit_n(n, mask=mask)
-            fits[n] = f
-            mse = max(float(f.rmse) ** 2, np.finfo(np.float64).tiny)
-            score = n_used * np.log(mse) + (per_play * n + 1) * np.log(n_used)
+        f = fits[n] = fit_n(n)
+        mse = max(float(f.rmse) ** 2, np.finfo(np.float64).tiny)
+        score = n_used * np.log(mse) + (per_play * n + 1) * np.log(n_used)
         eligible = [s for m, s in zip(tried, scores) if m not in rejected]
-        slack = tolerance if criterion == "holdout" else 0.0
-        better = not eligible or score < min(eligible) * (1 - slack)
-        if not f.determined and criterion == "holdout" and better:
-            # Judged on the whole stretch (see the module notes); one that would not improve
-            # is not worth the fit.
-            f = fit_n(n, S, mask=mask if S == T else used[:S])
-            if S == T:
-                fits[n] = f
+        better = not eligible or score < min(eligible)
         if not f.determined:
             rejected.add(n)
-        improved = n not in rejected and better
         tried.append(n)
         scores.append(score)
-        since_best = 0 if improved else since_best + 1
+        since_best = 0 if n not in rejected and better else since_best + 1
         if patience is not None and since_best >= patience:
             break
     if hasattr(bar, "close"):
         bar.close()
     while True:
-        chosen = _choose(tried, scores, rejected, tolerance if criterion == "holdout" else None)
-        fit = fits.get(chosen) or fit_n(chosen, mask=mask)
+        chosen = _choose(tried, scores, rejected, None)
+        fit = fits[chosen]
         if fit.determined or len(rejected) >= len(tried) - 1:
             break
         rejected.add(chosen)
@@ -241,7 +250,7 @@ def select_plays(
         criterion,
         fit,
         tuple(n for n in tried if n in rejected),
-        S,
+        T,
     )
 
 

@@ -85,7 +85,7 @@ def select_model(
     *,
     holdout: float = HOLDOUT,
     tolerance: float = 0.01,
-    patience: int = 2,
+    patience: int | None = 2,
     quiet: bool = True,
     mask=None,
     **fit_kwargs,
@@ -110,8 +110,9 @@ def select_model(
         raise ValueError(f"`lags` must be distinct numbers >= 0, got {lags}")
     if tolerance < 0:
         raise ValueError(f"`tolerance` must be non-negative, got {tolerance}")
-    if not isinstance(patience, (int, np.integer)) or patience < 1:
-        raise ValueError(f"`patience` must be a positive whole number, got {patience}")
+    if patience is not None and (not isinstance(patience, (int, np.integer)) or patience < 1):
+        raise ValueError(f"`patience` must be a positive whole number or None, got {patience}")
+    wait = np.inf if patience is None else patience
     u = _checks.signal(u, "u")
     y = _checks.signal(y, "y")
     T = u.shape[0]
@@ -199,9 +200,9 @@ def select_model(
         best = min(s for _, s in ok)
         return next(c for c, s in ok if s <= best * (1 + tolerance) + floor)
 
-    n, _ = search(plays, patience, lambda v, best: (v, 0))
+    n, _ = search(plays, wait, lambda v, best: (v, 0))
     creep_plays = n
-    n, k = search(lags, patience, lambda v, best: settle(n, v, best))
+    n, k = search(lags, wait, lambda v, best: settle(n, v, best))
     while True:
         fit = whole[(n, k)] if (n, k) in whole else fit_one(n, k, mask)
         if fit.determined:
