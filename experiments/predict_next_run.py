@@ -13,7 +13,7 @@ and scores tried, what was rejected as undetermined), its raw and IC validation 
 `pj.diagnose` on the same pair (its effects named and its `final_rmse_ic`). Float64, as the CLI.
 
 Writes experiments/results/predict_next_run.json.
-Run: python experiments/predict_next_run.py   (~6 min on 2 cores)
+Run: python experiments/predict_next_run.py   (~4 min on 2 cores)
 """
 
 import time
