@@ -9,7 +9,7 @@ from reference import pi as reference_pi  # a plain loop, independent of the lib
 
 import piest_jax as pj
 from piest_jax._identification import fit as _fit
-from piest_jax._identification.model_size import holdout_mask, padded_plays
+from piest_jax._identification.holdout import holdout_mask, padded_plays
 
 R_TRUE = np.array([0.0, 0.5, 1.2])
 W_TRUE = np.array([1.0, 0.6, 0.4])
@@ -480,13 +480,13 @@ def test_solver_objects_are_accepted(clean):
 def test_a_long_record_is_chosen_on_its_first_stretch(noisy, monkeypatch):
     # Above SELECT_SAMPLES the candidates are fitted and scored on the stretch of that many
     # samples from the first used one; the chosen model is fitted on every sample.
-    from piest_jax._identification import model_size
+    from piest_jax._identification import holdout
 
     u, y, _ = noisy
     used = np.ones(T)
     used[:30] = 0.0
-    monkeypatch.setattr(model_size, "SELECT_SAMPLES", 250)
-    assert model_size.selection_stretch(used) == 280
+    monkeypatch.setattr(holdout, "SELECT_SAMPLES", 250)
+    assert holdout.selection_stretch(used) == 280
     sel = pj.select_plays(u, y, (2, 3), patience=None, n_starts=1, mask=used)
     assert sel.selection_samples == 280 and sel.n_plays == 3
     for n, score in zip(sel.candidates, sel.scores):

@@ -27,6 +27,7 @@ from .compare import Comparison, compare
 from .fit import PIFit, fit_pi
 from .fit_gpi import GPIFit
 from .fit_preisach import PreisachFit
+from .holdout import HOLDOUT, holdout_mask
 from .identify_saturating import (
     SATURATING,
     check_saturating,
@@ -36,7 +37,7 @@ from .identify_saturating import (
 )
 from .loop import LoopDirection, loop_direction
 from .model_file import model_keys
-from .model_size import CRITERIA, HOLDOUT, ModelSize, holdout_mask, select_plays
+from .model_size import CRITERIA, ModelSize, select_plays
 from .model_structure import ModelChoice, select_model
 
 MODELS = ("auto", "pi", "pi+creep", *SATURATING)

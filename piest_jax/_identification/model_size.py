@@ -46,10 +46,10 @@ import numpy as np
 from .. import _checks
 from .._progress import progress
 from .fit import PIFit, fit_pi
+from .holdout import HOLDOUT, padded_plays
+from .model_structure import select_model
 
 CRITERIA = ("holdout", "bic")
-HOLDOUT = 0.3  # the default held-out fraction
-SELECT_SAMPLES = 2**18  # the longest stretch the held-out search fits its candidates on
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,61 +75,6 @@ class ModelSize:
     fit: PIFit
     rejected: tuple = ()
     selection_samples: int | None = None
-
-
-def holdout_mask(T: int, holdout: float) -> np.ndarray:
-    """1 on the first samples, 0 on the last `holdout` fraction (a blocked split).
-
-    **Arguments:** `T`, the record length; `holdout`, the held-out fraction in (0, 1).
-
-    **Returns:** float array (T,).
-    """
-    if not 0 < holdout < 1:
-        raise ValueError(f"`holdout` must lie strictly between 0 and 1, got {holdout}")
-    n_fit = int(round(T * (1 - holdout)))
-    if n_fit < 1 or n_fit >= T:
-        raise ValueError(f"a {holdout:g} hold-out of {T} samples leaves an empty block")
-    mask = np.zeros(T)
-    mask[:n_fit] = 1.0
-    return mask
-
-
-SHARED_UP_TO = 2**14
-
-
-def padded_plays(n: int, largest: int, T: int) -> int:
-    """The play count candidate `n` is solved with on a record of `T` samples (see above)."""
-    return largest if T <= SHARED_UP_TO else n
-
-
-def selection_stretch(used: np.ndarray) -> int:
-    """The length of the record's first stretch that the held-out search runs on.
-
-    **Arguments:** `used` (T,), 1 on the samples a fit uses (the samples before the first one
-    used only drive the plays, so the stretch starts counting there).
-
-    **Returns:** the first used sample's index plus `SELECT_SAMPLES`, at most T.
-    """
-    T = used.shape[0]
-    first = int(np.argmax(used > 0)) if np.any(used > 0) else 0
-    return min(T, first + SELECT_SAMPLES)
-
-
-def holdout_split(used: np.ndarray, holdout: float):
-    """The stretch the held-out search runs on and its split (see the module notes).
-
-    **Arguments:** `used` (T,), 1 on the samples a fit uses; `holdout`, the held-out fraction.
-
-    **Returns:** `(S, split, test)`: the stretch's length (`selection_stretch`), 1 on its
-    fitted part and 0 on its held-out block (S,), and the used samples of that block (S,) bool.
-    Raises `ValueError` when the block has no used sample.
-    """
-    S = selection_stretch(used)
-    split = holdout_mask(S, holdout)
-    test = (split == 0) & (used[:S] > 0)
-    if not test.any():
-        raise ValueError("the held-out block has no used samples (all masked out)")
-    return S, split, test
 
 
 def select_plays(
@@ -178,20 +123,11 @@ def select_plays(
     u = _checks.signal(u, "u")
     y = _checks.signal(y, "y")
     T = u.shape[0]
-    fits = {}
-    scores: list[float] = []
-    tried: list[int] = []
-    per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
-    largest = max(cands)
-
     used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
     if used.shape != (T,):
         raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
     if criterion == "holdout":
         # One selection rule: the held-out search is `select_model`'s with no lags offered.
-        # (Imported here: that module builds on this one's split.)
-        from .model_structure import select_model
-
         ch = select_model(
             u,
             y,
@@ -214,6 +150,12 @@ def select_plays(
             tuple(n for n, _ in ch.rejected),
             ch.selection_samples,
         )
+
+    fits = {}
+    scores: list[float] = []
+    tried: list[int] = []
+    per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
+    largest = max(cands)
 
     def fit_n(n):
         return fit_pi(u, y, n, pad_plays=padded_plays(n, largest, T), mask=mask, **fit_kwargs)

@@ -43,7 +43,7 @@ import numpy as np
 from .. import _checks
 from .._progress import progress
 from .fit import PIFit, fit_pi
-from .model_size import HOLDOUT, SHARED_UP_TO, holdout_split
+from .holdout import HOLDOUT, SHARED_UP_TO, holdout_split
 
 LAG_CANDIDATES = (0, 1, 2, 3)
 
