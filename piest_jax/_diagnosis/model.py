@@ -246,7 +246,9 @@ def _output_terms_fit(p, cfg, X, w, norm) -> tuple[float, Fit]:
     for i in range(iters):
         w_v = w
         v0 = X @ w_v[:px]
-        T = output_terms(p, cfg, v0, norm, drive_of(p, cfg, v0, w_v, norm))
+        # The slow terms' drive is fixed within an iteration: the predictions below reuse it.
+        drive = drive_of(p, cfg, v0, w_v, norm)
+        T = output_terms(p, cfg, v0, norm, drive)
         Xs, target = X, p.y
         g = _slope(p, cfg, v0, w, norm) if i > 0 else None
         if g is not None:
@@ -256,14 +258,14 @@ def _output_terms_fit(p, cfg, X, w, norm) -> tuple[float, Fit]:
         if not bilinear:  # the fixed-point iteration's last iterate
             best = (np.nan, Fit(A, target, w, w_v, norm))
             continue
-        sse = float(np.sum((_predict(X, p, cfg, w, w_v, norm) - p.y) ** 2))
+        sse = float(np.sum((_predict(X, p, cfg, w, w_v, norm, drive) - p.y) ** 2))
         if best is not None and sse >= best[0]:
             # A full Gauss-Newton step can overshoot: it is shortened until the model improves
             # (backtracking), else the best model seen is kept.
             full, w0 = w, best[1].w
             for shrink in (0.5, 0.25, 0.125):
                 w = w0 + shrink * (full - w0)
-                sse = float(np.sum((_predict(X, p, cfg, w, w_v, norm) - p.y) ** 2))
+                sse = float(np.sum((_predict(X, p, cfg, w, w_v, norm, drive) - p.y) ** 2))
                 if sse < best[0]:
                     break
             else:
@@ -288,11 +290,13 @@ def predict(p, cfg, w, w_v, norm):
     return _predict(linear_part(p, cfg), p, cfg, w, w_v, norm)
 
 
-def _predict(X, p, cfg, w, w_v, norm):
+def _predict(X, p, cfg, w, w_v, norm, drive=None):
+    """`predict` from the linear part `X`; `drive`, when given, is `drive_of` at X w_v."""
     px = X.shape[1]
     v = X @ w[:px]
-    v0 = X @ w_v[:px]
-    T = output_terms(p, cfg, v, norm, drive_of(p, cfg, v0, w_v, norm))
+    if drive is None:
+        drive = drive_of(p, cfg, X @ w_v[:px], w_v, norm)
+    T = output_terms(p, cfg, v, norm, drive)
     return v + T @ w[px:]
 
 
