@@ -1,8 +1,8 @@
 """`piest diagnose`'s search across lengths: plain-PI records, or records with one hidden effect.
 
-    python experiments/diagnose_plain_lengths.py [--lengths 1e4,1e5,1e6] [--seeds 3]
+    python experiments/diagnose_plain_lengths.py [--lengths 1e4,1e5,1e6] [--seeds 10]
         ->  experiments/results/diagnose_plain_lengths.json
-    python experiments/diagnose_plain_lengths.py --hidden all [--seeds 1] [--noise-ar 0]
+    python experiments/diagnose_plain_lengths.py --hidden all --seeds 1 [--noise-ar 0]
         ->  experiments/results/diagnose_hidden_lengths.json
 
 Records from the hidden-effect generator with no effect (`hidden_effect_record(())`), white noise
@@ -31,7 +31,7 @@ OUT = Path(__file__).parent / "results" / "diagnose_plain_lengths.json"
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--lengths", default="1e4,1e5,1e6")
-    p.add_argument("--seeds", type=int, default=3, help="records per length and noise (2 at the longest)")
+    p.add_argument("--seeds", type=int, default=10, help="records per length and noise (one fewer at the longest)")
     p.add_argument("--hidden", help="comma-separated effects to hide one at a time, or `all`")
     p.add_argument("--noise-ar", type=float, default=0.0, help="with --hidden: the noise's AR(1) phi")
     p.add_argument("--out")
