@@ -31,7 +31,12 @@ OUT = Path(__file__).parent / "results" / "diagnose_plain_lengths.json"
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--lengths", default="1e4,1e5,1e6")
-    p.add_argument("--seeds", type=int, default=10, help="records per length and noise (one fewer at the longest)")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=10,
+        help="records per length and noise (one fewer at the longest); with --hidden, per effect and length",
+    )
     p.add_argument("--hidden", help="comma-separated effects to hide one at a time, or `all`")
     p.add_argument("--noise-ar", type=float, default=0.0, help="with --hidden: the noise's AR(1) phi")
     p.add_argument("--out")

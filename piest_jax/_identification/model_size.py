@@ -123,9 +123,6 @@ def select_plays(
     u = _checks.signal(u, "u")
     y = _checks.signal(y, "y")
     T = u.shape[0]
-    used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
-    if used.shape != (T,):
-        raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
     if criterion == "holdout":
         # One selection rule: the held-out search is `select_model`'s with no lags offered.
         ch = select_model(
@@ -156,6 +153,9 @@ def select_plays(
     tried: list[int] = []
     per_play = 3 if fit_kwargs.get("fit_initial_states", False) else 2
     largest = max(cands)
+    used = np.ones(T) if mask is None else np.asarray(mask, dtype=float)
+    if used.shape != (T,):
+        raise ValueError(f"`mask` has shape {used.shape}, expected ({T},)")
 
     def fit_n(n):
         return fit_pi(u, y, n, pad_plays=padded_plays(n, largest, T), mask=mask, **fit_kwargs)
@@ -180,7 +180,7 @@ def select_plays(
     if hasattr(bar, "close"):
         bar.close()
     while True:
-        chosen = _choose(tried, scores, rejected, None)
+        chosen = _choose(tried, scores, rejected)
         fit = fits[chosen]
         if fit.determined or len(rejected) >= len(tried) - 1:
             break
@@ -196,16 +196,13 @@ def select_plays(
     )
 
 
-def _choose(tried, scores, rejected, tolerance):
-    """The smallest candidate within `tolerance` of the best score (None: the best), among those
-    not rejected; the smallest tried when every one is."""
+def _choose(tried, scores, rejected):
+    """The candidate with the lowest score among those not rejected (the smaller on a tie); the
+    smallest tried when every one is."""
     pairs = [(n, s) for n, s in zip(tried, scores) if n not in rejected]
     if not pairs:
         return min(tried)
-    best = min(s for _, s in pairs)
-    if tolerance is None:
-        return next(n for n, s in pairs if s == best)
-    return next(n for n, s in pairs if s <= best * (1 + tolerance))
+    return min(pairs, key=lambda p: (p[1], p[0]))[0]
 
 
 def rmse(a, b) -> float:
