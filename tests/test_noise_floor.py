@@ -92,3 +92,26 @@ def test_single_effect_under_ar1_noise_is_named_exactly(effect, seed):
     seven = _scaling.noise_std(rec.y)
     assert seven < 0.35 * truth["noise_std"]
     assert 1.5 * seven < s["noise_std"] < 1.1 * truth["noise_std"]
+
+
+def test_a_round_takes_the_smaller_floor_and_the_larger_sample_count(monkeypatch):
+    # The plain model's residual holds the drift's slow misfit, which correlates it: it counts
+    # far fewer effective samples than the drift model's residual, whose count judges the round.
+    rec, _ = _hidden.generate(("offset_drift",), key=jax.random.PRNGKey(4), n_samples=2000, noise_ar=0.8)
+    s = _diagnose.search(rec, solver=None, uncertainty=False, candidates=("offset_drift",), max_effects=1)
+    assert s["effects"] == ["offset_drift"]
+    sc = s["scaling"]
+    p = _scaling.prepared(rec, sc, folds=True)
+    floor = _scaling.noise_std(rec.y) / sc.y_half
+    step = _diagnose._noise_step(p)
+    plain = _diagnose._noise(p, {}, floor, step)
+    drift = _diagnose._noise(p, s["model_final"]["cfg"], floor, step)
+    assert plain[1] < 0.25 * drift[1]
+    first = s["rounds"][0]
+    assert first["effective_samples"] == pytest.approx(drift[1])
+    assert (first["noise_std"] / sc.y_half) ** 2 == pytest.approx(min(plain[0], drift[0]))
+    # Where the smaller floor comes with the smaller count (a 10^6-sample AR(1) record with a
+    # drift did this), the count still comes from the other residual.
+    measured = iter([(1.0, 12.0), (2.0, 55.0)])
+    monkeypatch.setattr(_diagnose, "_noise", lambda *args: next(measured))
+    assert _diagnose._round_noise(p, {}, {}, floor, step) == (1.0, 55.0)

@@ -115,6 +115,25 @@ def _noise(p, cfg, floor, step):
     return max(sigma**2, 1e-12), effective_samples(r, SMOOTHER * step)
 
 
+def _noise_step(p):
+    """The spacing of the samples `_noise` runs its local cubic on (see there)."""
+    return max(1, min(half_cycle(p.u) // SMOOTHER, len(p.y) // (8 * SMOOTHER)))
+
+
+def _round_noise(p, cfg, top_cfg, floor, step):
+    """The noise variance and effective sample size that judge a round (`_noise` of each).
+
+    What the current model `cfg` misses leaks into its residual: it raises the noise floor and,
+    being slow, lowers the effective sample size. The best candidate's residual (`top_cfg`)
+    holds less of it when the candidate is right and as much noise either way, so the smaller
+    floor and the larger sample size judge the round, each from whichever residual is the
+    cleaner in that respect: a slow misfit left in one residual must not set the charge per
+    parameter for every candidate.
+    """
+    now, then = _noise(p, cfg, floor, step), _noise(p, top_cfg, floor, step)
+    return min(now[0], then[0]), max(now[1], then[1])
+
+
 def _significant(gain, n_params, cur_mse, sigma2, n):
     score = (gain - PARAM_PENALTY * sigma2 * n_params / n) / sigma2
     return score, bool(score > MIN_GAIN_NOISE and gain > MIN_GAIN_REL * cur_mse)
@@ -252,7 +271,7 @@ def search(
     untried = {c: why for c in candidates if (why := EFFECT[c].unidentifiable(p)) is not None}
     candidates = [c for c in candidates if c not in untried]
     floor = noise_std(rec.y) / sc.y_half
-    step_noise = max(1, min(half_cycle(p.u) // SMOOTHER, len(p.y) // (8 * SMOOTHER)))
+    step_noise = _noise_step(p)
     cfg: dict[str, object] = {}
     named: list[str] = []
     rounds: list[dict[str, object]] = []
@@ -266,11 +285,8 @@ def search(
         }
         if not fits:
             break
-        # What the current model misses leaks into its residual's noise floor; the best
-        # candidate's residual holds less of it when the candidate is right, and as much
-        # noise either way, so the smaller of the two floors judges the round.
         top = min(fits, key=lambda c: fits[c][0])
-        sigma2, n = min(_noise(p, cfg, floor, step_noise), _noise(p, {**cfg, top: fits[top][1]}, floor, step_noise))
+        sigma2, n = _round_noise(p, cfg, {**cfg, top: fits[top][1]}, floor, step_noise)
         scores = {}
         for c, (mse, q) in fits.items():
             score, ok = _significant(cur - mse, EFFECT[c].n_params, cur, sigma2, n)
