@@ -100,6 +100,8 @@ def test_a_round_takes_the_smaller_floor_and_the_larger_sample_count(monkeypatch
     rec, _ = _hidden.generate(("offset_drift",), key=jax.random.PRNGKey(4), n_samples=2000, noise_ar=0.8)
     s = _diagnose.search(rec, solver=None, uncertainty=False, candidates=("offset_drift",), max_effects=1)
     assert s["effects"] == ["offset_drift"]
+    # Short enough that the search ran on every sample, as the record prepared here.
+    assert rec.n_samples <= _diagnose.SEARCH_SAMPLES
     sc = s["scaling"]
     p = _scaling.prepared(rec, sc, folds=True)
     floor = _scaling.noise_std(rec.y) / sc.y_half
