@@ -1,5 +1,9 @@
 """Test configuration: float64 everywhere unless a test asks for float32, deterministic hypothesis."""
 
+import os
+import shutil
+import tempfile
+
 import jax
 import pytest
 from hypothesis import HealthCheck, settings
@@ -15,6 +19,22 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile("ci")
+
+
+def pytest_configure(config):
+    """The `piest` processes the tests start share one compilation cache of their own, removed at
+    the end, rather than the user's (the test workers inherit the variable)."""
+    if not hasattr(config, "workerinput") and "PIEST_COMPILE_CACHE" not in os.environ:
+        folder = tempfile.mkdtemp(prefix="piest-test-compiled-")
+        os.environ["PIEST_COMPILE_CACHE"] = folder
+        config._piest_compile_cache = folder
+
+
+def pytest_unconfigure(config):
+    folder = getattr(config, "_piest_compile_cache", None)
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)
+        os.environ.pop("PIEST_COMPILE_CACHE", None)
 
 
 @pytest.fixture

@@ -96,7 +96,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             "Prandtl-Ishlinskii hysteresis toolkit. Each command writes its figures and a JSON "
             "report into --out and prints the paths it wrote. Exit codes: 0 success, 2 bad "
             "input or arguments (one-line message), 1 an internal error, 130 interrupted (Ctrl-C), "
-            "143 terminated (kill), 141 the reader of the output went away."
+            "143 terminated (kill), 141 the reader of the output went away. Compiled programs are "
+            "kept between runs in the user's cache folder; PIEST_COMPILE_CACHE=off turns that off, "
+            "PIEST_COMPILE_CACHE=DIR moves it."
         ),
     )
     parser.add_argument("--version", action="version", version=_version())

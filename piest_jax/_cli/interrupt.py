@@ -26,6 +26,7 @@ import signal
 import sys
 import threading
 
+from . import compile_cache
 from . import output as _io
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -43,6 +44,7 @@ def _end(command: str, signum: int) -> None:
     with _io.COMMIT_LOCK:  # a commit under way completes before we remove anything
         try:
             _io.discard_temporaries()
+            compile_cache.discard_new()
             name = f"piest {command}" if command else "piest"
             os.write(2, f"{name}: {_WORDS.get(signum, 'stopped')}\n".encode())
         finally:
@@ -105,6 +107,7 @@ def entry() -> None:
     """The `piest` console script: run the command line, ending at once on a signal."""
     from . import main
 
+    compile_cache.enable()
     argv = sys.argv[1:]
     command = next((a for a in argv if not a.startswith("-")), "")
     with guard(command):

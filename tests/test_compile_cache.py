@@ -1,0 +1,124 @@
+"""The `piest` console script keeps compiled programs across runs (JAX's persistent compilation
+cache), in the user's cache folder unless `PIEST_COMPILE_CACHE` says otherwise; a run that finds
+them compiles nothing new and writes the same results; a signal leaves no entry of its own."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from piest_jax._cli import compile_cache
+
+_SIM = ["simulate", "--input", "triangle", "--thresholds", "0,0.5,1", "--weights", "1,0.5,0.25", "--quiet"]
+
+
+def test_the_folder_follows_the_variable(tmp_path):
+    home = {"XDG_CACHE_HOME": str(tmp_path / "xdg")}
+    if sys.platform.startswith("linux"):
+        assert compile_cache.cache_folder(home) == tmp_path / "xdg" / "piest_jax" / "compiled"
+    for off in ("off", "0", "No", " false "):
+        assert compile_cache.cache_folder({**home, "PIEST_COMPILE_CACHE": off}) is None
+    chosen = {**home, "PIEST_COMPILE_CACHE": str(tmp_path / "mine")}
+    assert compile_cache.cache_folder(chosen) == tmp_path / "mine"
+
+
+def test_enable_sets_jax_variables_and_respects_the_users(tmp_path):
+    env = {"PIEST_COMPILE_CACHE": str(tmp_path / "c")}
+    assert compile_cache.enable(env) == tmp_path / "c"
+    assert (tmp_path / "c").is_dir()
+    assert env["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / "c")
+    assert env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] == "0"
+    # A cache the user configured for JAX is theirs: nothing changes.
+    users = {"JAX_COMPILATION_CACHE_DIR": str(tmp_path / "theirs"), "PIEST_COMPILE_CACHE": str(tmp_path / "c2")}
+    assert compile_cache.enable(users) == tmp_path / "theirs"
+    assert "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in users
+    assert not (tmp_path / "c2").exists()
+    # Off, or a folder that cannot be made: no cache, and the command still runs.
+    off = {"PIEST_COMPILE_CACHE": "off"}
+    assert compile_cache.enable(off) is None and "JAX_COMPILATION_CACHE_DIR" not in off
+    (tmp_path / "file").write_text("x")
+    blocked = {"PIEST_COMPILE_CACHE": str(tmp_path / "file" / "sub")}
+    assert compile_cache.enable(blocked) is None and "JAX_COMPILATION_CACHE_DIR" not in blocked
+
+
+def _piest(args, env, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "piest_jax", *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=600
+    )
+
+
+def _env(tmp_path, **extra):
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "PIEST_"))}
+    return {
+        **env,
+        "MPLBACKEND": "Agg",
+        "HOME": str(tmp_path / "home"),
+        "XDG_CACHE_HOME": str(tmp_path / "xdg"),
+        **extra,
+    }
+
+
+def test_a_second_run_finds_every_program_and_writes_the_same(tmp_path):
+    env = _env(tmp_path)
+    first = _piest([*_SIM, "--out", "a"], env, tmp_path)
+    assert first.returncode == 0, first.stderr
+    folder = tmp_path / "xdg" / "piest_jax" / "compiled"
+    entries = set(os.listdir(folder))
+    assert entries
+    second = _piest([*_SIM, "--out", "b"], env, tmp_path)
+    assert second.returncode == 0, second.stderr
+    assert second.stderr == first.stderr == ""
+    # Everything the second run compiled was already there.
+    assert set(os.listdir(folder)) == entries
+    a, b = (json.loads((tmp_path / d / "simulate.json").read_text()) for d in "ab")
+    assert a == b
+    assert (tmp_path / "a" / "simulate.csv").read_bytes() == (tmp_path / "b" / "simulate.csv").read_bytes()
+
+
+def test_off_writes_no_cache(tmp_path):
+    proc = _piest([*_SIM, "--out", "a"], _env(tmp_path, PIEST_COMPILE_CACHE="off"), tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert not (tmp_path / "xdg" / "piest_jax").exists()
+    assert not list(tmp_path.glob("home/**/piest_jax"))
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_a_signal_removes_the_entries_of_the_run(tmp_path):
+    folder = tmp_path / "cache"
+    env = _env(tmp_path, PIEST_COMPILE_CACHE=str(folder))
+    args = ["montecarlo", "--inputs", "4000", "--samples", "20000", "--out", "mc"]
+    proc = subprocess.Popen([sys.executable, "-m", "piest_jax", *args], env=env, cwd=tmp_path, stderr=subprocess.PIPE)
+    seen: set[str] = set()
+    deadline = time.monotonic() + 300
+    while not seen and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        seen = set(os.listdir(folder)) if folder.is_dir() else set()
+    assert seen and proc.poll() is None, "the run ended before it wrote an entry"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert err.decode().strip() == "piest montecarlo: terminated"
+    assert not (seen & set(os.listdir(folder)))
+    assert not Path(tmp_path / "mc").exists()
+
+
+def test_jax_keeps_no_program_with_a_check_of_a_traced_value(tmp_path):
+    # What docs/performance.md says of the programs a second run compiles again.
+    script = """
+import sys
+import equinox as eqx, jax, jax.numpy as jnp
+x = jnp.arange(3.0)
+jax.jit(lambda a: jnp.sin(a) * 2.0)(x).block_until_ready()
+jax.jit(lambda a: eqx.error_if(a, jnp.any(a < 0), "negative") * 3.0)(x).block_until_ready()
+"""
+    env = _env(tmp_path, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "c"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    names = os.listdir(tmp_path / "c")
+    assert any(n.startswith("jit__lambda") for n in names)
+    assert sum(n.startswith("jit__lambda") for n in names) == 1
