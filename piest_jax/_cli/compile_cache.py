@@ -1,9 +1,9 @@
 """Compiled programs kept across `piest` runs: JAX's persistent compilation cache.
 
-Each `piest` process compiles its XLA programs afresh, up to 40 % of a short command's time
-(`experiments/bench_cold_start.py`, docs/performance.md). The console script therefore points JAX's persistent
-compilation cache at a folder of the user's cache directory, so that a second run of a command
-loads what the first compiled. Only the console script does this (`interrupt.entry`), before JAX
+Each `piest` process compiles its XLA programs afresh, up to two fifths of a short command's
+time (`experiments/bench_cold_start.py`, docs/performance.md). The console script therefore
+points JAX's persistent compilation cache at a folder of the user's cache directory, so that a
+second run of a command loads what the first compiled. Only the console script does this (`interrupt.entry`), before JAX
 is imported: `run_cli` inside someone else's program leaves their JAX configuration alone.
 
 `PIEST_COMPILE_CACHE` chooses: unset, the user's cache folder (`cache_folder`); `off` (or `0`,
@@ -84,8 +84,9 @@ def _entries(folder: Path) -> set[str]:
 
 
 def discard_new() -> None:
-    """Remove the entries this process added: called when a signal ends it, since JAX writes an
-    entry in place and one being written at that moment would be left cut short."""
+    """Remove the entries added to the folder since this process started: called when a signal
+    ends it, since JAX writes an entry in place and one being written at that moment would be
+    left cut short. Another run's new entries go too, which costs that program a compilation."""
     folder = _STATE.get("folder")
     if folder is None:
         return
