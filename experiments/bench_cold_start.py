@@ -1,6 +1,6 @@
 """Start-up cost of every `piest` command: without the compilation cache, first and second run.
 
-    python experiments/bench_cold_start.py     # results/bench_cold_start.json (~10 min on 2 cores)
+    python experiments/bench_cold_start.py     # results/bench_cold_start.json (~15 min on 2 cores)
 
 Each command runs as a user runs it (`python -m piest_jax ...`, its own process) three times:
 with the cache off (`PIEST_COMPILE_CACHE=off`), then twice with an empty cache folder of its own
@@ -62,12 +62,11 @@ def main():
         floor = min(timed([sys.executable, "-c", "import jax"], off, work) for _ in range(3))
         helps = min(timed([*py, "--help"], off, work) for _ in range(3))
         model = work / "model"
-        timed([*py, "fit", str(pj.dataset_path("piezo_aye2018_identification.csv")), "--model", "pi",
-               "--plays", "auto", "--out", str(model), "--quiet"], off, work)  # fmt: skip
-        chosen = [c for c in a.only.split(",") if c] or list(commands(model / "fit.json"))
+        cmds = commands(model / "fit.json")
+        timed([*py, *cmds["fit"][:2], "--model", "pi", "--plays", "auto", "--out", str(model), "--quiet"], off, work)
         rows = {}
-        for name in chosen:
-            argv = [*py, *commands(model / "fit.json")[name], "--quiet", "--force"]
+        for name in [c for c in a.only.split(",") if c] or list(cmds):
+            argv = [*py, *cmds[name], "--quiet", "--force"]
             cached = {**base, "PIEST_COMPILE_CACHE": str(work / f"cache-{name}")}
             row = {"argv": ["piest", *argv[3:]]}
             row["off_s"] = timed([*argv, "--out", str(work / f"{name}-off")], off, work)
