@@ -22,7 +22,7 @@ from jaxtyping import Array, Float
 
 from .. import _checks
 from .._custom_types import Gram, Regressor, Scalar, Signal, SignalLike, Weights
-from .._excitation.pe import _regressor, _window_args, pe_level
+from .._excitation.pe import _pe_levels, _regressor, _window_args
 from .rls import NORMALISATIONS, Normalisation, check_p0, sample_weight, sqrt_p0
 
 
@@ -173,7 +173,9 @@ def _certificate(H, P0, dt, window: int, normalisation: str) -> Certificate:
     r0 = jnp.linalg.eigvalsh(jnp.linalg.inv(_p0_matrix(P0, n, H.dtype)))
     lam_a = jnp.maximum(jnp.linalg.eigvalsh(A)[:, 0], 0.0)
     gram_bound = r0[-1] / (r0[0] + lam_a)
-    c1 = jnp.maximum(pe_level(H, window), 0.0)
+    # The core, not `pe_level`: H was checked before this program, and a check of a traced value
+    # would be a host callback, which keeps the program out of the persistent compilation cache.
+    c1 = jnp.maximum(jnp.min(_pe_levels(H, window, 1)), 0.0)
     hh = jnp.sum(H * H, axis=1)
     m2 = (1 + hh) ** 2 if normalisation == "paper" else 1 + hh
     max_m2 = jnp.max(m2)

@@ -37,7 +37,7 @@ from .._custom_types import Gram, Scalar, Weights
 from .estimators import AbstractEstimator
 
 Normalisation = Literal["paper", "standard"]
-NORMALISATIONS = ("paper", "standard")
+NORMALISATIONS: tuple[Normalisation, ...] = ("paper", "standard")
 WINDUPS = ("trace", "reset", "none")
 
 
