@@ -135,13 +135,18 @@ def _uses_kernel(method: str, time_varying: bool = False, dtype=None) -> bool:
     return method in ("kernel", "auto") and resolved(method, time_varying=time_varying, dtype=dtype) == "kernel"
 
 
-def _bank(u: Array, r: Array, x0: Array, method: str) -> Array:
-    """Play outputs (T, n) for thresholds r (n,) or time-varying (T, n) and initial states x0 (n,)."""
+def _bank(u: Array, r: Array, x0: Array, method: str, *, check_finite: bool = True) -> Array:
+    """Play outputs (T, n) for thresholds r (n,) or time-varying (T, n) and initial states x0 (n,).
+
+    `check_finite=False` leaves out the kernel's NaN/inf check of a traced `u`, for inputs finite
+    by construction: the check is a host callback, and JAX keeps no compiled program with one in
+    its persistent compilation cache.
+    """
     method = resolved(method, time_varying=r.ndim == 2, dtype=u.dtype)
     if method == "kernel":
         from . import kernel as _kernel
 
-        return _kernel.bank(u, r, x0)
+        return _kernel.bank(u, r, x0, check_finite=check_finite)
     if method == "associative":
         return _associative(u, r, x0)
     return _scan(u, r, x0)

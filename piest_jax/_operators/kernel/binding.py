@@ -253,7 +253,7 @@ def _check_finite(u: Array, r: Array) -> Array:
     return r + eqx.error_if(jnp.zeros((), r.dtype), bad, "`u` contains NaN or inf")
 
 
-def bank(u: Array, r: Array, x0: Array) -> Array:
+def bank(u: Array, r: Array, x0: Array, *, check_finite: bool = True) -> Array:
     """The play outputs H (T, n) for input `u` (T,), thresholds `r` (n,) and states `x0` (n,).
 
     All three must share one float dtype (float32 or float64); anything else raises `ValueError`,
@@ -267,11 +267,13 @@ def bank(u: Array, r: Array, x0: Array) -> Array:
     - `r`: the thresholds (n,), non-negative.
     - `x0`: the initial states (n,).
 
+    - `check_finite`: False for an input finite by construction (see `play._bank`).
+
     **Returns:** H (T, n), equal to the pure-JAX scan to the last bit.
     """
     u, r, x0 = (jnp.asarray(a) for a in (u, r, x0))
     _validate(u, r, x0=x0)
-    return _bank(u, _check_finite(u, r), x0)
+    return _bank(u, _check_finite(u, r) if check_finite else r, x0)
 
 
 def _bank_bwd(u, r, x0, codes, gh):
