@@ -194,11 +194,7 @@ def figure(report: dict):
     for j in range(w.shape[1]):
         a1.plot(t, truth[j] - w[:, j], lw=1.2, label=f"ω̃{j + 1} (ω{j + 1} = {truth[j]:g})")
     a1.axhline(0, color="k", lw=0.5)
-    a1.set(
-        xlabel="time [s]",
-        ylabel="weight error ω − ω̂",
-        xlim=(0, t[-1]),
-    )
+    a1.set(xlabel="time [s]", ylabel="weight error ω − ω̂", xlim=(0, t[-1]))
     a1.legend(fontsize=8, loc="upper right")
     ax_in = a1.inset_axes([0.42, 0.3, 0.53, 0.35])
     rel = np.linalg.norm(w - truth, axis=1) / np.linalg.norm(truth)

@@ -266,7 +266,6 @@ def bank(u: Array, r: Array, x0: Array, *, check_finite: bool = True) -> Array:
     - `u`: the input (T,).
     - `r`: the thresholds (n,), non-negative.
     - `x0`: the initial states (n,).
-
     - `check_finite`: False for an input finite by construction (see `play._bank`).
 
     **Returns:** H (T, n), equal to the pure-JAX scan to the last bit.
