@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from .._identification.fit_data import pad_count
-from .._operators.play import Method, play
+from .._operators.play import Method, _bank
 
 N_PLAYS = 16
 THRESHOLDS = np.arange(N_PLAYS) / N_PLAYS
@@ -33,7 +33,10 @@ def _batch(g, r, x0, keep):
     method: Method = "associative" if r.ndim == 2 and x0.shape[0] >= ASSOCIATIVE_BATCH else "auto"
 
     def one(x):
-        h = play(g, r, x, method=method)
+        # The bank without `play`'s checks of traced values: `plays` checked its NumPy inputs,
+        # and a check inside would be a host callback, which keeps the program out of the
+        # persistent compilation cache of `piest diagnose`.
+        h = _bank(g, r, x, method, check_finite=False)
         # Read inside the program, the kept samples alone leave it (and the associative form
         # clamps at them alone).
         return h if keep is None else h[keep]
@@ -62,6 +65,10 @@ def plays(g, r, x0, keep=None):
     g = np.asarray(g, float)
     x0 = np.asarray(x0, float)
     r = np.asarray(r, float)
+    if not (np.all(np.isfinite(g)) and np.all(np.isfinite(x0))):
+        raise ValueError("the diagnosis's plays need a finite input and finite initial states")
+    if not (np.all(np.isfinite(r)) and np.all(r >= 0)):
+        raise ValueError("the diagnosis's plays need finite, non-negative thresholds")
     if r.ndim < 2:
         r = np.broadcast_to(r, x0.shape[-1:])
     T = len(g)
