@@ -66,7 +66,10 @@ def main():
         cmds = commands(model / "fit.json")
         timed([*py, *cmds["fit"][:2], "--model", "pi", "--plays", "auto", "--out", str(model), "--quiet"], off, work)
         # `--only` re-measures some commands and keeps the others' rows, each with its own floor.
-        rows = json.loads(a.out.read_text())["commands"] if a.only and a.out.exists() else {}
+        rows = {}
+        if a.only and a.out.exists():
+            kept = json.loads(a.out.read_text())
+            rows = {k: {"floor_s": kept["import_jax_floor_s"], **r} for k, r in kept["commands"].items()}
         for name in [c for c in a.only.split(",") if c] or list(cmds):
             argv = [*py, *cmds[name], "--quiet", "--force"]
             cached = {**base, "PIEST_COMPILE_CACHE": str(work / f"cache-{name}")}

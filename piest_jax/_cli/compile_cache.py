@@ -3,8 +3,9 @@
 Each `piest` process compiles its XLA programs afresh, up to two fifths of a short command's
 time (`experiments/bench_cold_start.py`, docs/performance.md). The console script therefore
 points JAX's persistent compilation cache at a folder of the user's cache directory, so that a
-second run of a command loads what the first compiled. Only the console script does this (`interrupt.entry`), before JAX
-is imported: `run_cli` inside someone else's program leaves their JAX configuration alone.
+second run of a command loads what the first compiled. Only the console script does this
+(`interrupt.entry`), before JAX is imported: `run_cli` inside someone else's program leaves
+their JAX configuration alone.
 
 `PIEST_COMPILE_CACHE` chooses: unset, the user's cache folder (`cache_folder`); `off` (or `0`,
 `no`, `false`), no cache; anything else, that folder. A cache the user set up for JAX

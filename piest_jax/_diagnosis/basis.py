@@ -10,6 +10,7 @@ lets a long record be searched on a few thousand samples.
 import jax
 import numpy as np
 
+from .. import _checks
 from .._identification.fit_data import pad_count
 from .._operators.play import Method, _bank
 
@@ -65,10 +66,10 @@ def plays(g, r, x0, keep=None):
     g = np.asarray(g, float)
     x0 = np.asarray(x0, float)
     r = np.asarray(r, float)
-    if not (np.all(np.isfinite(g)) and np.all(np.isfinite(x0))):
-        raise ValueError("the diagnosis's plays need a finite input and finite initial states")
-    if not (np.all(np.isfinite(r)) and np.all(r >= 0)):
-        raise ValueError("the diagnosis's plays need finite, non-negative thresholds")
+    for a, name in ((g, "g"), (x0, "x0"), (r, "r")):
+        _checks.finite(a, name)
+    if np.any(r < 0):
+        raise ValueError(f"`r` must be non-negative, got min {r.min():.6g}")
     if r.ndim < 2:
         r = np.broadcast_to(r, x0.shape[-1:])
     T = len(g)

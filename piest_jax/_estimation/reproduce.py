@@ -214,7 +214,7 @@ def figure(report: dict):
     a2.axhline(report["time_input_exceeds_r_max"], color="k", lw=0.6, ls="-.", label="u first exceeds r_max")
     a2.set(xlabel="P0", ylabel="time to 1 % [s]")
     # Titles at a stated height: placed automatically, each would be laid out against the tick
-    # labels of its axes at every draw (a third of the figure's drawing time).
+    # labels of its axes at every draw (about half of the figure's drawing time, measured).
     a1.set_title(f"{report['figure']}: {report['input']}, P0 = {report['P0']:.0e}·I", y=1.0)
     a2.set_title("convergence time vs P0 (open ▲: not within 1 s)", y=1.0)
     a2.legend(fontsize=8)
