@@ -111,6 +111,7 @@ _EXPORTS = {
     "shortest_time_constant": ("._identification.time_constants", "shortest_time_constant"),
     "ModelChoice": ("._identification.model_structure", "ModelChoice"),
     "select_model": ("._identification.model_structure", "select_model"),
+    "PreisachCandidate": ("._identification.preisach_candidate", "PreisachCandidate"),
     "Identification": ("._identification.identify", "Identification"),
     "Validation": ("._identification.identify", "Validation"),
     "identify": ("._identification.identify", "identify"),
@@ -285,6 +286,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.model_structure import ModelChoice as ModelChoice
     from ._identification.model_structure import select_model as select_model
     from ._identification.pi_model import PIModel as PIModel
+    from ._identification.preisach_candidate import PreisachCandidate as PreisachCandidate
     from ._identification.time_constants import initial_time_constants as initial_time_constants
     from ._identification.time_constants import shortest_time_constant as shortest_time_constant
     from ._models.composite import HysteresisModel as HysteresisModel

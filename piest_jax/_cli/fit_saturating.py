@@ -69,8 +69,6 @@ def run(args, rec, val, out, options: dict) -> int:
     validation.png)."""
     import jax
 
-    from .._identification.figures import fit_figure
-
     if args.model == "gpi":
         terms = TERMS if args.terms is None else args.terms
         n_params = 2 * args.plays + 3 * terms
@@ -83,8 +81,17 @@ def run(args, rec, val, out, options: dict) -> int:
         result = identify(rec, val, **options, fit_from=args.fit_from, key=jax.random.key(args.seed))
     except ValueError as e:
         raise CLIError(f"{args.data}: {' '.join(str(e).split())}") from None
-    assert isinstance(result.fit, GPIFit | PreisachFit)  # options["model"] is one that saturates
     note_loop(args, result.loop, result.positive_weights)
+    return write(args, result, out)
+
+
+def write(args, result, out) -> int:
+    """Write fit.json, fit.md, fit.png (and validation.png) for a model that saturates, whether
+    asked for (`--model gpi|preisach`) or chosen by `--model auto`."""
+    from .._identification.figures import fit_figure
+
+    assert isinstance(result.fit, GPIFit | PreisachFit)
+    rec, val = result.record, None if result.validation is None else result.validation.record
     report = {**result.to_json(), **record_fields(rec, args)}
     table = "" if result.fit.std_errors is None else parameter_table(result.fit)
     written = [
@@ -113,7 +120,7 @@ def run(args, rec, val, out, options: dict) -> int:
         print(
             f"piest fit: warning: the record does not determine {', '.join(undetermined)} "
             "(standard error beyond half the parameter's scale, or free in the Jacobian's "
-            f"rank); predictions that depend on them are arbitrary: {_REMEDY[args.model]}",
+            f"rank); predictions that depend on them are arbitrary: {_REMEDY[report['structure']]}",
             file=sys.stderr,
         )
     for p in written:
@@ -130,7 +137,7 @@ def _band(fit, u):
 
 def _markdown(args, report, table="") -> str:
     lines = [f"# piest fit: {args.data}", ""]
-    if args.model == "gpi":
+    if report["structure"] == "gpi":
         g = report["output_function"]
         lines += [
             f"gpi, {report['n_plays']} plays, {len(g['amplitudes'])} tanh terms; RMSE {report['rmse']:.4g}.",
@@ -159,6 +166,14 @@ def _markdown(args, report, table="") -> str:
             "",
             "The density is in fit.json (`density`, half-widths by centres).",
         ]
+        chosen = report.get("selection", {}).get("preisach")
+        if chosen is not None:
+            lines += [
+                "",
+                f"Chosen by --model auto: held-out RMSE {chosen['score']:.4g} against the best PI "
+                f"candidate's {min(m['score'] for m in report['selection']['models'] if not m['rejected']):.4g}, "
+                "every parameter determined by the record.",
+            ]
         if "std_errors" in report:
             bad = report["undetermined"]
             lines += [

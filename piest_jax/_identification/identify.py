@@ -39,6 +39,7 @@ from .loop import LoopDirection, loop_direction
 from .model_file import model_keys
 from .model_size import CRITERIA, ModelSize, select_plays
 from .model_structure import ModelChoice, select_model
+from .preisach_candidate import preisach_candidate
 
 MODELS = ("auto", "pi", "pi+creep", *SATURATING)
 CANDIDATES = (1, 2, 3, 4, 5, 6, 8, 10)
@@ -222,6 +223,7 @@ def _selection_keys(sel) -> dict:
             for c, s in zip(sel.candidates, sel.scores)
         ],
         "selection_samples": sel.selection_samples,
+        **({} if sel.preisach is None else {"preisach": sel.preisach.to_json()}),
     }
 
 
@@ -401,7 +403,9 @@ def identify(
 
     - `record`: the identification [`Record`][]; `validation`: a second record to judge the
       model on (it never takes part in choosing or fitting), or None.
-    - `model`: `"auto"` (plain PI or PI + creep, by held-out error: [`select_model`][]),
+    - `model`: `"auto"` (plain PI or PI + creep, by held-out error: [`select_model`][]; with
+      `plays="auto"`, non-negative weights and unfitted initial states also a non-negative
+      Preisach model, chosen only where the record determines it: [`PreisachCandidate`][]),
       `"pi"`, `"pi+creep"`, or one of the models that saturate: `"gpi"` (a
       [`GeneralizedPI`][], [`fit_gpi`][piest_jax.fit_gpi]; needs `plays`) or `"preisach"` (a
       [`Preisach`][] grid, [`fit_preisach`][piest_jax.fit_preisach]; no `plays`, `solver`,
@@ -476,14 +480,7 @@ def identify(
         )
         checked = None
         if validation is not None:
-            raw, convention = validation_comparison(fit, validation, initial_states, fit_initial_states)
-            band = None
-            if fit.covariance is not None:
-                states = None
-                if isinstance(fit, GPIFit) and not fit_initial_states:
-                    states = validation.u[0] if initial_states is None else initial_states
-                band = prediction_band(fit, validation.u, initial_states=states)
-            checked = Validation(validation, raw, None, starts_at_rest(validation.u), convention, band)
+            checked = _validate_saturating(fit, validation, initial_states, fit_initial_states)
         return Identification(fit, record, None, checked, solver, fit_from, positive_weights, loop)
     p = plan(record, fit_from=fit_from, **options)
     fit_options = dict(
@@ -503,7 +500,9 @@ def identify(
         record, p, model=model, plays=plays, criterion=criterion or "holdout", quiet=quiet, **fit_options
     )
     checked = None
-    if validation is not None:
+    if validation is not None and isinstance(fit, PreisachFit):
+        checked = _validate_saturating(fit, validation, initial_states, fit_initial_states)
+    elif validation is not None:
         checked = _validate(fit, record, validation, initial_states, fit_initial_states)
     return Identification(fit, record, selection, checked, solver, fit_from, positive_weights, loop)
 
@@ -517,7 +516,33 @@ def _choose_and_fit(record, p: Plan, *, model, plays, criterion, quiet, **fit_op
     if len(p.plays) == 1 and len(p.lags) == 1:
         return fit_pi(u, y, p.plays[0], n_lags=p.lags[0], dt=record.dt, **fit_options), None
     choice = select_model(u, y, record.dt, p.plays, p.lags, quiet=quiet, **fit_options)
+    # Everything left to the choice: a non-negative Preisach model is a candidate too (see
+    # `preisach_candidate.py`; not with initial states fitted, which it has no way to fit, nor
+    # with signed weights, whose density could not be inverted).
+    if (
+        model == "auto"
+        and plays == "auto"
+        and fit_options["positive_weights"]
+        and not fit_options["fit_initial_states"]
+    ):
+        best = dict(zip(choice.candidates, choice.scores))[(choice.n_plays, choice.n_lags)]
+        candidate, fit = preisach_candidate(
+            np.asarray(u), np.asarray(y), p.mask, best, initial_states=fit_options["initial_states"]
+        )
+        choice = dataclasses.replace(choice, preisach=candidate, fit=choice.fit if fit is None else fit)
     return choice.fit, choice
+
+
+def _validate_saturating(fit: GPIFit | PreisachFit, val: Record, initial_states, fit_initial_states) -> Validation:
+    """The raw prediction of `val` and its band (the models that saturate have no IC estimate)."""
+    raw, convention = validation_comparison(fit, val, initial_states, fit_initial_states)
+    band = None
+    if fit.covariance is not None:
+        states = None
+        if isinstance(fit, GPIFit) and not fit_initial_states:
+            states = val.u[0] if initial_states is None else initial_states
+        band = prediction_band(fit, val.u, initial_states=states)
+    return Validation(val, raw, None, starts_at_rest(val.u), convention, band)
 
 
 def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Validation:

@@ -138,6 +138,7 @@ def select_plays(
             mask=mask,
             **fit_kwargs,
         )
+        assert isinstance(ch.fit, PIFit)  # `select_model` alone never tries a Preisach model
         return ModelSize(
             ch.n_plays,
             tuple(n for n, _ in ch.candidates),

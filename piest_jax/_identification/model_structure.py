@@ -43,7 +43,9 @@ import numpy as np
 from .. import _checks
 from .._progress import progress
 from .fit import PIFit, fit_pi
+from .fit_preisach import PreisachFit
 from .holdout import HOLDOUT, SHARED_UP_TO, holdout_split
+from .preisach_candidate import PreisachCandidate
 
 LAG_CANDIDATES = (0, 1, 2, 3)
 
@@ -54,25 +56,33 @@ class ModelChoice:
 
     **Fields:**
 
-    - `n_plays`, `n_lags`: the chosen counts; `structure`: `"pi"` or `"pi+creep"`.
+    - `n_plays`, `n_lags`: the chosen counts (the best PI candidate's when a Preisach model
+      was chosen); `structure`: `"pi"`, `"pi+creep"` or `"preisach"`.
     - `candidates`: the (n_plays, n_lags) pairs tried, in order; `scores`: their held-out RMSE.
-    - `fit`: the chosen model fitted on the whole record (a [`PIFit`][]).
+    - `fit`: the chosen model fitted on the whole record (a [`PIFit`][], or the
+      [`PreisachFit`][] when `preisach.chosen`).
     - `rejected`: the (n_plays, n_lags) pairs not chosen because a parameter was undetermined.
     - `selection_samples`: the samples the candidates were fitted and scored on (the whole
       record, or its first stretch: `selection_stretch`).
+    - `preisach`: how the Preisach candidate of [`identify`][piest_jax.identify]'s
+      `model="auto"` fared (a [`PreisachCandidate`][]), or None when it was not tried
+      ([`select_model`][] alone never tries it).
     """
 
     n_plays: int
     n_lags: int
     candidates: tuple
     scores: tuple
-    fit: PIFit
+    fit: PIFit | PreisachFit
     rejected: tuple = ()
     selection_samples: int | None = None
+    preisach: PreisachCandidate | None = None
 
     @property
     def structure(self) -> str:
-        """`"pi"` or `"pi+creep"`."""
+        """`"pi"`, `"pi+creep"` or `"preisach"`."""
+        if self.preisach is not None and self.preisach.chosen:
+            return "preisach"
         return "pi" if self.n_lags == 0 else "pi+creep"
 
 
