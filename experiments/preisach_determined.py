@@ -71,15 +71,16 @@ GRIDS = (16, 12, 10, 8, 6, 4)
 
 
 def determined_grid(u, y, **kwargs):
-    """The finest square grid whose monotone fit leaves no parameter undetermined (else the
-    coarsest): (its fit, [(size, undetermined parameters) for each grid fitted])."""
-    tried = []
+    """The 16 x 16 monotone fit, and the finest square grid's whose fit leaves no parameter
+    undetermined (else the coarsest): (16 x 16 fit, that fit, [(size, undetermined parameters)
+    for each grid fitted])."""
+    fits, tried = [], []
     for g in GRIDS:
-        f = pj.fit_preisach(u, y, n_widths=g, n_centres=g, monotone=True, **kwargs)
-        tried.append((g, int(np.sum(np.asarray(f.undetermined)))))
+        fits.append(pj.fit_preisach(u, y, n_widths=g, n_centres=g, monotone=True, **kwargs))
+        tried.append((g, int(np.sum(np.asarray(fits[-1].undetermined)))))
         if tried[-1][1] == 0:
             break
-    return f, tried
+    return fits[0], fits[-1], tried
 
 
 def _rmse(e) -> float:
@@ -108,8 +109,7 @@ def coarser_grids() -> list:
     """The determined grid against 16 x 16 where the prediction can be checked."""
     rows = []
     rec, val = pj.load_dataset(PIEZO[0]), pj.load_dataset(PIEZO[1])
-    f, tried = determined_grid(rec.u, rec.y)
-    f16 = pj.fit_preisach(rec.u, rec.y, n_widths=16, n_centres=16, monotone=True, covariance=None)
+    f16, f, tried = determined_grid(rec.u, rec.y)
     rows.append(
         {
             "case": "Aye identification -> validation (raw)",
@@ -124,10 +124,7 @@ def coarser_grids() -> list:
             u, y, mask = twice([lp for k, lp in enumerate(all_loops) if k != held])
             h, b = all_loops[held]
             v = np.concatenate([h, h])
-            f, tried = determined_grid(u, y, mask=mask, initial_states=0.0)
-            f16 = pj.fit_preisach(
-                u, y, n_widths=16, n_centres=16, mask=mask, initial_states=0.0, monotone=True, covariance=None
-            )
+            f16, f, tried = determined_grid(u, y, mask=mask, initial_states=0.0)
             rows.append(
                 {
                     "case": f"{name} held-out loop {held}",
@@ -143,8 +140,7 @@ def coarser_grids() -> list:
         ("reversals", reversals(0)),
     ):
         y = np.asarray(plant(u)) + 0.003 * np.random.default_rng(0).standard_normal(u.size)
-        f, tried = determined_grid(u, y)
-        f16 = pj.fit_preisach(u, y, n_widths=16, n_centres=16, monotone=True, covariance=None)
+        f16, f, tried = determined_grid(u, y)
         rows.append(
             {
                 "case": f"synthetic Preisach plant, fitted on {label}, run on other reversals",

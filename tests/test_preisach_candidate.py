@@ -118,10 +118,12 @@ def test_a_candidate_that_does_not_win_on_the_block_is_not_fitted_on_the_whole()
     ids=["structure given", "plays given", "signed weights", "fitted states"],
 )
 def test_it_is_tried_only_when_everything_is_left_to_the_choice(options):
+    # Each case still runs the structure choice (two play counts, or plain against one lag), so
+    # only the conditions on the Preisach candidate keep it out.
     rec = record(reversals(0, turns=40)[:600])
-    small = {} if "plays" in options else dict(candidates=(2,))
+    small = {} if "plays" in options else dict(candidates=(1, 2))
     result = pj.identify(rec, **{**small, "lags": 1, **options, "max_steps": 20, "starts": 1})
-    assert result.selection is None or result.selection.preisach is None
+    assert isinstance(result.selection, pj.ModelChoice) and result.selection.preisach is None
     assert isinstance(result.fit, pj.PIFit)
 
 
