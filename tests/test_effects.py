@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from scipy import optimize
 
 from piest_jax import play
+from piest_jax._data.record import Record
 from piest_jax._diagnosis import basis as _basis
 from piest_jax._diagnosis import model as _model
 from piest_jax._diagnosis import output_map as _output_map
@@ -22,7 +23,7 @@ from piest_jax._diagnosis.effects import delay as _delay
 from piest_jax._diagnosis.effects import linear_dynamics as _linear_dynamics
 from piest_jax._diagnosis.effects import offset_drift as _offset_drift
 from piest_jax._diagnosis.effects import saturation as _saturation
-from piest_jax._diagnosis.scaling import Prepared
+from piest_jax._diagnosis.scaling import N_BLOCKS, N_FOLDS, Prepared, prepared, scaling_of
 
 
 def _loop_plays(g, r, x0):
@@ -280,6 +281,36 @@ def test_cross_validation_matches_an_explicit_loop():
         ref[te] = p.y[te] - A[te] @ _model.lstsq(A[~te], p.y[~te])
     np.testing.assert_allclose(err, ref, atol=1e-9)
     assert mse == pytest.approx(np.mean(ref**2))
+
+
+def test_the_first_block_is_in_no_fold():
+    t = np.arange(6400) * 1e-3
+    rec = Record(t, np.sin(2 * np.pi * 3 * t), np.sin(2 * np.pi * 3 * t - 0.3))
+    for step in (1, 3):
+        p = prepared(rec, scaling_of(rec), step=step, folds=True)
+        first = np.arange(len(p.u)) < len(p.u) / N_BLOCKS
+        assert np.all(p.folds[first] == -1) and set(p.folds[~first]) == set(range(N_FOLDS))
+
+
+def test_cross_validation_always_fits_the_first_block():
+    # Fold -1 (the record's start, where the unrecorded past acts) is in every fit and in no
+    # score: its errors are NaN and the MSE is that of the held-out folds.
+    p = _record()
+    start = np.arange(len(p.y)) < len(p.y) // 16
+    p.folds = np.where(start, -1, p.folds)
+    p.y = p.y + np.where(start, 5.0, 0.0)  # a start far off every model, as a transient is
+    A = np.column_stack([p.plain_plays(), np.ones(len(p.y))])
+    mse, err = _model.cv_mse(p, A)
+    ref = np.full(len(p.y), np.nan)
+    pos = _model.positive_mask({}, A.shape[1])
+    for k in range(4):
+        te, tr = p.folds == k, p.folds != k
+        # The column scale of the whole design, as cv_mse's folds share it (the weak ridge
+        # depends on it): the start's offset of 5 moves it.
+        w = _model._solve(A[tr].T @ A[tr], A[tr].T @ p.y[tr], _model._scale(A), pos)
+        ref[te] = p.y[te] - A[te] @ w
+    np.testing.assert_allclose(err, ref, atol=1e-9)
+    assert np.all(np.isnan(err[start])) and mse == pytest.approx(np.mean(ref[~start] ** 2))
 
 
 def test_grids_and_refinements_are_physical():

@@ -3,7 +3,8 @@
 The loop: fit the base PI model (offset, relaxed initial states); for every effect not yet in the
 model, add it and fit it over its grid of nonlinear parameters (`model`, `effects/`), and measure the
 error on held-out blocks by blocked cross-validation (contiguous blocks, folds interleaved, the
-model running through every block so states carry across). The best candidate is named only if
+model running through every block so states carry across; the first block, where the unrecorded
+past acts, is fitted in every fold and never scored). The best candidate is named only if
 its held-out gain, less a charge per parameter, is large against the noise floor and a real share
 of the remaining error; then the loop repeats on what remains, and effects that a later one made
 redundant are dropped again. Long records are sub-sampled for the search, with the plays run on

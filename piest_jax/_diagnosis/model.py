@@ -324,15 +324,18 @@ def cv_mse(p, A, cfg=None, target=None):
     **Arguments:** `p` (with `folds`); `A` (T, q), the regressors; `cfg`, the configuration
     that built them (for the sign constraints); `target`, what A fits (default `p.y`).
 
-    **Returns:** `(mse, errors)`, the errors (T,) each from the fit that did not see them.
+    Samples of fold -1 (the record's first block: `scaling.prepared`) are always fitted, never
+    held out.
+
+    **Returns:** `(mse, errors)`, the errors (T,) each from the fit that did not see them (NaN on
+    the samples always fitted); `mse` is their mean square.
     """
     y = p.y if target is None else target
     scale = _scale(A)
     pos = positive_mask(cfg or {}, A.shape[1], p.signed)
-    parts = [(p.folds == k) for k in np.unique(p.folds)]
-    grams = [(A[m].T @ A[m], A[m].T @ y[m]) for m in parts]
-    G, b = sum(g for g, _ in grams), sum(v for _, v in grams)
-    err = np.empty(len(p.y))
-    for m, (Gk, bk) in zip(parts, grams):
-        err[m] = y[m] - A[m] @ _solve(G - Gk, b - bk, scale, pos)
-    return float(np.mean(err**2)), err
+    G, b = A.T @ A, A.T @ y
+    parts = [(p.folds == k) for k in np.unique(p.folds) if k >= 0]
+    err = np.full(len(p.y), np.nan)
+    for m in parts:
+        err[m] = y[m] - A[m] @ _solve(G - A[m].T @ A[m], b - A[m].T @ y[m], scale, pos)
+    return float(np.nanmean(err**2)), err

@@ -248,7 +248,7 @@ def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) ->
 
     **Arguments:** `rec`; `sc`, the identification record's `Scaling`; `step`, keep every
     `step`-th sample; `folds`, assign the samples to interleaved cross-validation folds of
-    contiguous blocks.
+    contiguous blocks (the first block to none: fold -1, fitted in every fold).
 
     **Returns:** a `Prepared`.
     """
@@ -259,7 +259,10 @@ def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) ->
     f = None
     if folds:
         blocks = np.minimum((np.arange(len(u)) * N_BLOCKS) // len(u), N_BLOCKS - 1)
-        f = blocks % N_FOLDS
+        # The first block is always fitted, never held out: how a model continues the record's
+        # start, which the unrecorded past sets, says little of how it predicts the rest, and
+        # one start transient far above the noise would outweigh every other block in the score.
+        f = np.where(blocks == 0, -1, blocks % N_FOLDS)
     if step == 1:
         return Prepared(u, y, t, sc.rate_scale, sc.period, f, signed=sc.signed_plays)
     # The plays see every turning point of the full-rate input, not only the kept samples: a
