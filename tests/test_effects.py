@@ -24,6 +24,7 @@ from piest_jax._diagnosis.effects import linear_dynamics as _linear_dynamics
 from piest_jax._diagnosis.effects import offset_drift as _offset_drift
 from piest_jax._diagnosis.effects import saturation as _saturation
 from piest_jax._diagnosis.scaling import N_BLOCKS, N_FOLDS, Prepared, prepared, scaling_of
+from piest_jax._identification.time_constants import LAG_RATIO, shortest_time_constant
 
 
 def _loop_plays(g, r, x0):
@@ -258,7 +259,7 @@ def test_saturation_envelope_is_a_centred_tanh():
 
 def test_output_side_effects_are_reproduced_by_predict():
     p = _record()
-    cfg = {"creep": (0.5, 5.0), "offset_drift": True}
+    cfg = {"creep": _creep.Lags((0.5, 5.0), "output"), "offset_drift": True}
     p.y = np.tanh(1.5 * _basis.plays(p.u, _basis.THRESHOLDS, np.zeros((1, 16)))[0] @ np.full(16, 0.1))
     f = _model.fit(p, cfg)
     assert f.A.shape[1] == _basis.N_PLAYS + 1 + 2 + _offset_drift.N_DRIFT
@@ -266,9 +267,13 @@ def test_output_side_effects_are_reproduced_by_predict():
     cfg = {"asymmetry": 0.2, **cfg}
     f = _model.fit(p, cfg)
     pos = _model.positive_mask(cfg, f.A.shape[1])
-    # Plays and the two creep modes are sign-constrained; offset, polynomial and drift are free.
+    # Plays and the two creep lags of the output are sign-constrained; offset, polynomial and
+    # drift are free, and so are lags of the input.
     assert pos.sum() == _basis.N_PLAYS + 2 and pos[_basis.N_PLAYS + 1 + len(_asymmetry.POWERS)]
     assert np.all(f.w[pos] >= 0)
+    cfg = {**cfg, "creep": _creep.Lags((0.5, 5.0), "input", 0.1)}
+    pos = _model.positive_mask(cfg, _model.fit(p, cfg).A.shape[1])
+    assert pos.sum() == _basis.N_PLAYS and not pos[_basis.N_PLAYS + 1 + len(_asymmetry.POWERS)]
 
 
 def test_cross_validation_matches_an_explicit_loop():
@@ -320,8 +325,23 @@ def test_grids_and_refinements_are_physical():
     for turns in EFFECT["initial_state"].grid(p):
         x = _basis.history_states(p.u[0], turns)
         assert np.all(np.abs(x - p.u[0]) <= _basis.THRESHOLDS + 1e-12)
-    (taus,) = EFFECT["creep"].grid(p)
-    assert len(taus) == _creep.N_CREEP and taus[-1] == pytest.approx(p.t[-1] - p.t[0])
+    # Creep: one bank of lags of the output up to the record's length, and lags of the input
+    # that keep the bounds of `piest fit`'s creep (none faster than the input's reversals
+    # allow, each at least LAG_RATIO slower than the one before), as do their neighbours.
+    out, *inp = EFFECT["creep"].grid(p)
+    assert out.drive == "output" and len(out) == _creep.N_OUTPUT_MODES
+    assert out[-1] == pytest.approx(p.t[-1] - p.t[0]) and EFFECT["creep"].neighbours(out, 0) == []
+    lo = shortest_time_constant(p.u, p.dt)
+    assert len(inp) == _creep.N_STARTS
+    for taus in inp:
+        assert taus.drive == "input" and len(taus) == _creep.N_INPUT_LAGS and taus.shortest == lo
+        assert taus[0] > lo and np.all(np.diff(np.log(taus)) >= np.log(LAG_RATIO) - 1e-12)
+        near = EFFECT["creep"].neighbours(taus, 0)
+        assert near and all(n[0] >= lo and np.all(np.diff(np.log(n)) >= np.log(LAG_RATIO) - 1e-12) for n in near)
+    # Near the fastest bound, the two moves below it (the fastest lag alone, all lags together)
+    # are left out and the other six kept.
+    near = EFFECT["creep"].neighbours(_creep.Lags((lo * 1.01, lo * 10, lo * 100), "input", lo), 0)
+    assert len(near) == 6 and all(n[0] > lo for n in near)
     q = ("second", 100.0, 0.5)
     assert all(n[1] > 0 and 0 < n[2] <= 1.5 for n in EFFECT["linear_dynamics"].neighbours(q, 0))
 
@@ -406,6 +426,60 @@ def test_a_record_of_one_repeated_loop_does_not_try_noncongruence():
     assert "minor_loop_noncongruence" in s["rounds"][0]["untried"]
     assert all("minor_loop_noncongruence" not in r["candidates"] for r in s["rounds"])
     assert "asymmetry" in s["rounds"][0]["candidates"]
+
+
+def _stepped_loops(t):
+    """Cycles of 1 Hz whose amplitude steps from 0.4 to 1 over ten seconds: loops at ten heights."""
+    amps = np.linspace(0.4, 1.0, 10)
+    return amps[np.minimum(t.astype(int), 9)] * np.sin(2 * np.pi * t)
+
+
+def test_one_repeated_loop_leaves_the_input_envelopes_out():
+    # One loop traced again shows its shape, which the output map gives it as well; an input
+    # envelope would add a claim about loops elsewhere (how their widths change with where they
+    # sit) that the record cannot check. Loops at several heights can.
+    t = np.linspace(0, 10, 4001)
+    steady = Prepared(np.sin(2 * np.pi * t), np.zeros(t.size), t, rate_scale=5.0, period=1.0)
+    varied = Prepared(_stepped_loops(t), np.zeros(t.size), t, rate_scale=5.0, period=1.0)
+    asym, sat = EFFECT["asymmetry"], EFFECT["saturation"]
+    assert asym.grid(steady) == [None] and asym.neighbours(None, 0) == []
+    assert sat.grid(steady) == [_saturation.NONE] and sat.neighbours(_saturation.NONE, 0) == []
+    g = np.linspace(-1, 1, 9)
+    assert asym.input_map(None, g) is g and not asym.changes_plays(None) and not asym.static(None)
+    assert {0.2, -0.2} <= set(asym.grid(varied)) and len(sat.grid(varied)) > 1
+
+
+def _creep_record(drive):
+    """PI output plus creep of one drive, on loops at several heights with two holds."""
+    dt, t = 0.01, np.arange(3000) * 0.01
+    u = 0.8 * _stepped_loops(t / 3)
+    for a in (900, 2100):
+        u[a : a + 300] = u[a]
+        u[a + 300 :] += u[a] - u[a + 300]
+    H = _basis.plays(u, _basis.THRESHOLDS, np.zeros((1, _basis.N_PLAYS)))[0]
+    v = H @ np.linspace(0.6, 0.05, _basis.N_PLAYS)
+    d = u if drive == "input" else v
+    lag = np.asarray(_creep.lowpass(d, np.exp(-dt / np.array([0.7, 4.0])))).sum(axis=1) - 2 * d
+    y = v + 0.3 * lag + np.random.default_rng(1).normal(0, 1e-3, t.size)
+    folds = np.minimum(np.arange(t.size) * N_BLOCKS // t.size, N_BLOCKS - 1)
+    return Prepared(u, y, t, rate_scale=5.0, period=3.0, folds=np.where(folds == 0, -1, folds % N_FOLDS))
+
+
+@pytest.mark.parametrize("drive", ["input", "output"])
+def test_creep_is_found_with_the_drive_that_made_it(drive):
+    # Lags of the input (`piest fit`'s creep operator) and lags of the output (a yield of the
+    # displacement itself) creep differently after a reversal, where the plays hold the output
+    # while the input moves: the search's held-out blocks tell them apart.
+    from piest_jax._diagnosis import diagnose as _diagnose
+
+    p = _creep_record(drive)
+    grid = EFFECT["creep"].grid(p)
+    assert {q.drive for q in grid} == {"input", "output"}
+    mse, q = _diagnose._fit_many(p, {}, "creep", grid)
+    assert q.drive == drive
+    # The other drive's best fit predicts the held-out blocks worse.
+    other = [g for g in grid if g.drive != drive]
+    assert _diagnose._fit_many(p, {}, "creep", other)[0] > 1.5 * mse
 
 
 @pytest.mark.parametrize("name", ["asymmetry", "saturation"])

@@ -12,6 +12,7 @@ import pytest
 from piest_jax._diagnosis import basis as _basis
 from piest_jax._diagnosis import model as _model
 from piest_jax._diagnosis import refine as _refine
+from piest_jax._diagnosis.effects.creep import Lags
 from piest_jax._diagnosis.scaling import Prepared
 
 T = 1200
@@ -28,7 +29,7 @@ def _coefficients(p, cfg, rng):
     X = _model.linear_part(p, cfg)
     n_out = _model.output_terms(p, cfg, X[:, 0], (0.0, 1.0)).shape[1]
     w = np.concatenate([rng.uniform(0.2, 1.0, _basis.N_PLAYS) / 8, [0.1], rng.normal(0, 0.1, n_out)])
-    if "creep" in cfg:  # its coefficients are kept >= 0
+    if "creep" in cfg and cfg["creep"].drive == "output":  # its coefficients are kept >= 0
         sl = _model.output_slices(cfg)["creep"]
         w[sl] = np.abs(w[sl])
     return w
@@ -44,11 +45,14 @@ CONFIGS = [
     {"asymmetry": 0.2},
     {"saturation": (1.8, 0.15)},
     {"asymmetry": -0.2, "saturation": (1.0, 0.0)},
-    {"saturation": (0.0, 0.0), "creep": (0.1, 1.0)},
-    {"creep": (0.05, 0.3, 1.0)},
+    {"saturation": (0.0, 0.0), "creep": Lags((0.1, 1.0), "output")},
+    {"creep": Lags((0.05, 0.3, 1.0), "output")},
+    {"creep": Lags((0.05, 0.3, 1.0), "input", 0.02)},
+    {"asymmetry": None, "saturation": (0.0, 0.0), "creep": Lags((0.1, 1.0), "input", 0.05)},
     {"offset_drift": True},
     {"initial_state": (0.7, -0.3)},
-    {"delay": 0.002, "asymmetry": -0.2, "creep": (0.1, 1.0), "offset_drift": True},
+    {"delay": 0.002, "asymmetry": -0.2, "creep": Lags((0.1, 1.0), "output"), "offset_drift": True},
+    {"delay": 0.002, "asymmetry": -0.2, "creep": Lags((0.1, 1.0), "input", 0.05), "offset_drift": True},
 ]
 
 

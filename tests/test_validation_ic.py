@@ -1,7 +1,7 @@
 """Validation with estimated initial conditions: the diagnosis model on another run of the device.
 
 A model is fixed; only the output offset, the plays' initial states (through an input history)
-and the creep modes' initial states are estimated on the other record. Checked against records
+and the creep lags' initial states are estimated on the other record. Checked against records
 built by plain loops with known initial conditions.
 """
 
@@ -14,6 +14,7 @@ from piest_jax._data.record import Record
 from piest_jax._diagnosis import basis as _basis
 from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._diagnosis.effects import EFFECT
+from piest_jax._diagnosis.effects.creep import Lags
 from piest_jax._diagnosis.scaling import prepared, scaling_of
 
 
@@ -31,27 +32,28 @@ def _model(cfg, seed=1):
     return dict(cfg=cfg, coef=w, coef_v=w, norm=(0.0, 1.0))
 
 
-@pytest.mark.parametrize("taus", [(), (0.05, 0.4)])
-def test_offset_and_initial_states_are_recovered(taus):
+@pytest.mark.parametrize(("taus", "drive"), [((), None), ((0.05, 0.4), "output"), ((0.05, 0.4), "input")])
+def test_offset_and_initial_states_are_recovered(taus, drive):
     ident = _record()
     sc = scaling_of(ident)
     other = _record(seed=3)
     p = prepared(other, sc)
-    cfg = {"creep": taus} if taus else {}
+    cfg = {"creep": Lags(taus, drive, 0.01)} if taus else {}
     model = _model(cfg)
     w = model["coef"]
     history = EFFECT["initial_state"].grid(p)[7]
-    # The truth, from plain loops: plays from the history's states, creep modes from states
-    # away from rest, and an offset.
+    # The truth, from plain loops: plays from the history's states, creep lags (of the input or
+    # of the output) from states away from rest, and an offset.
     x0 = _basis.history_states(p.u[0], history)
     v = ref.play(p.u, _basis.THRESHOLDS, x0) @ w[: _basis.N_PLAYS] + w[_basis.N_PLAYS]
     y = v.copy()
     delta = np.array([0.3, -0.2])[: len(taus)]
+    d = p.u if drive == "input" else v
     for k, tau in enumerate(taus):
-        lam, z = np.exp(-p.dt / tau), v[0] + delta[k]
-        for i in range(len(v)):
-            z = lam * z + (1 - lam) * v[i]
-            y[i] += w[_basis.N_PLAYS + 1 + k] * (z - v[i])
+        lam, z = np.exp(-p.dt / tau), d[0] + delta[k]
+        for i in range(len(d)):
+            z = lam * z + (1 - lam) * d[i]
+            y[i] += w[_basis.N_PLAYS + 1 + k] * (z - d[i])
     shift = 0.37
     truth = Record(other.t, other.u, (y + shift) * sc.y_half + sc.y_mid)
     _, raw = _diagnose.evaluate(truth, sc, model, transferable_only=True)
@@ -68,7 +70,7 @@ def test_offset_and_initial_states_are_recovered(taus):
 def test_estimated_initial_conditions_never_predict_worse():
     ident, other = _record(), _record(seed=5)
     sc = scaling_of(ident)
-    model = _model({"creep": (0.2,)})
+    model = _model({"creep": Lags((0.2,), "output")})
     rng = np.random.default_rng(2)
     noisy = Record(other.t, other.u, other.y + 0.1 * rng.normal(size=len(other.y)))
     _, raw = _diagnose.evaluate(noisy, sc, model, transferable_only=True)
@@ -107,7 +109,13 @@ def test_a_drift_gives_way_to_creep_that_explains_as_much():
 
 @pytest.mark.parametrize(
     "cfg",
-    [{}, {"creep": (0.05, 0.4)}, {"asymmetry": 0.2, "delay": 0.013}, {"saturation": (1.0, 0.15), "creep": (0.05, 0.4)}],
+    [
+        {},
+        {"creep": Lags((0.05, 0.4), "output")},
+        {"creep": Lags((0.05, 0.4), "input", 0.01)},
+        {"asymmetry": 0.2, "delay": 0.013},
+        {"saturation": (1.0, 0.15), "creep": Lags((0.05, 0.4), "output")},
+    ],
 )
 def test_refined_and_grid_models_agree_from_a_history(cfg):
     # The diagnosis carries a model either as grid coefficients or as the optimistix-refined

@@ -189,7 +189,7 @@ def _markdown(d, data):
         lines += [
             "",
             "On the validation record, *raw* runs the model from rest; *initial conditions "
-            "estimated* fits only the output offset and the plays' and creep modes' initial "
+            "estimated* fits only the output offset and the plays' and creep lags' initial "
             "states to that record (as system identification tools compare a model with data), "
             "everything else fixed.",
             "",

@@ -460,9 +460,9 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
     As system identification tools compare a model with data (MATLAB's `compare`): the model
     is fixed, and only what no model of the input can know is estimated on the record: the
     output offset (a sensor zero that moved between runs), the plays' initial states and the
-    states of the effects with their own memory (creep's modes). The plays' states are those an
+    states of the effects with their own memory (creep's lags). The plays' states are those an
     input history leaves (the `initial_state` effect's grid of histories, so they stay
-    reachable); a state of an effect's own adds a known transient (a creep mode starting away
+    reachable); a state of an effect's own adds a known transient (a creep lag starting away
     from rest adds a decaying exponential lam_k^t), so those states and the offset enter
     linearly and are fitted by least squares for each history. Drift over time is not used.
 

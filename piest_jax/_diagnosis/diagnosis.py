@@ -25,7 +25,7 @@ class DiagnosisValidation:
     - `baseline_rmse`, `final_rmse`: the plain PI model and the model with the named effects,
       each run from rest (*raw*).
     - `baseline_rmse_ic`, `final_rmse_ic`: the same with the record's output offset, the plays'
-      initial states and the creep modes' states estimated on it, everything else fixed.
+      initial states and the creep lags' states estimated on it, everything else fixed.
     - `baseline_fit_percent`, `final_fit_percent`, `baseline_fit_percent_ic`,
       `final_fit_percent_ic`: the fit percentages 100 (1 - ||e|| / ||y - mean y||) of the four.
     - `initial_conditions`: `{"baseline": ..., "final": ...}`, what was estimated for each model

@@ -51,7 +51,7 @@ class AbstractEffect:
     time_driven: ClassVar[bool] = False
     # Acts before the plays (input map, thresholds, initial states): its grid needs fresh plays.
     play_side: ClassVar[bool] = False
-    # Its output-term coefficients are kept >= 0.
+    # Its output-term coefficients are kept >= 0 (for a form, see `positive_terms`).
     positive: ClassVar[bool] = False
     # Fixed-point or Gauss-Newton iterations its output terms need in `model.fit`.
     fit_iterations: ClassVar[int] = 1
@@ -91,6 +91,11 @@ class AbstractEffect:
     def describe(self, q) -> dict:
         """The parameters `q` in words (JSON-ready)."""
         return {}
+
+    def positive_terms(self, q) -> bool:
+        """Whether its output terms' coefficients are kept >= 0 at the value `q` (default:
+        the class's `positive`; an effect whose forms differ decides per form)."""
+        return self.positive
 
     # The NumPy model (variable projection).
 

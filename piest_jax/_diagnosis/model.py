@@ -124,13 +124,13 @@ def positive_mask(cfg, n_cols, signed=False):
     Positive play weights are the physical PI model of a counterclockwise loop (every cumulative
     weight positive, hence an invertible operator); `signed` frees them, for a loop that runs
     clockwise (`Prepared.signed`). An effect marks its own output terms positive (creep's
-    modes); play terms are signed.
+    lags of the output); play terms are signed.
     """
     pos = np.zeros(n_cols, bool)
     pos[:N_PLAYS] = not signed
     if n_cols > n_linear(cfg):
         for name, sl in output_slices(cfg).items():
-            pos[sl] = EFFECT[name].positive
+            pos[sl] = EFFECT[name].positive_terms(cfg[name])
     return pos
 
 

@@ -93,6 +93,19 @@ def half_cycle(u, frac: float = 0.05) -> int:
     return int(np.median(turns)) if len(turns) else len(u)
 
 
+# Loops whose reversal points move by less than this share of the input's range are one loop
+# traced again: it shows the loop's shape, which a function of the output can give it, and
+# nothing of how a loop changes with where it sits.
+MIN_SPREAD = 0.1
+
+
+def one_loop(u) -> bool:
+    """Whether the record traces one loop again and again (`reversal_spread` < `MIN_SPREAD`):
+    an effect that would claim how loops elsewhere differ from it (an input envelope, a
+    density that depends on a loop's centre) is then undetermined by the record."""
+    return reversal_spread(u) < MIN_SPREAD
+
+
 def reversal_spread(u, frac: float = 0.05) -> float:
     """How far the record's loops move: the larger spread (10th to 90th percentile) of its upper
     and of its lower reversal points, as a share of the input's range (0 when one loop is traced
@@ -121,9 +134,25 @@ class Prepared:
     so that the play columns equal the full-rate plays at the kept samples.
     """
 
-    def __init__(self, u, y, t, rate_scale, period, folds=None, *, play_u=None, play_rho=None, keep=None, signed=False):
+    def __init__(
+        self,
+        u,
+        y,
+        t,
+        rate_scale,
+        period,
+        folds=None,
+        *,
+        play_u=None,
+        play_rho=None,
+        keep=None,
+        signed=False,
+        sample_dt=None,
+    ):
         self.u, self.y, self.t = (np.asarray(a, float) for a in (u, y, t))
         self.dt = float(np.median(np.diff(self.t)))
+        # The sampling interval of the full-rate record this one was sub-sampled from.
+        self.sample_dt = self.dt if sample_dt is None else float(sample_dt)
         self.s = (self.t - self.t[0]) / max(self.t[-1] - self.t[0], 1e-300)
         self.rho = np.abs(np.gradient(self.u, self.t)) / rate_scale
         self.period = period
@@ -270,5 +299,15 @@ def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) ->
     index, keep = turning_samples(u_full, step)
     rho = np.abs(np.gradient(u_full, rec.t))[index] / sc.rate_scale
     return Prepared(
-        u, y, t, sc.rate_scale, sc.period, f, play_u=u_full[index], play_rho=rho, keep=keep, signed=sc.signed_plays
+        u,
+        y,
+        t,
+        sc.rate_scale,
+        sc.period,
+        f,
+        play_u=u_full[index],
+        play_rho=rho,
+        keep=keep,
+        signed=sc.signed_plays,
+        sample_dt=float(np.median(np.diff(rec.t))),
     )

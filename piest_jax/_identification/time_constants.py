@@ -55,7 +55,7 @@ def reversals(u, fraction: float = REVERSAL) -> int:
     return int(np.count_nonzero(moves[1:] != moves[:-1]))
 
 
-def shortest_time_constant(u, dt: float = 1.0, mask=None) -> float:
+def shortest_time_constant(u, dt: float = 1.0, mask=None, *, sample_dt: float | None = None) -> float:
     """The fastest creep time constant a fit on `u` allows (see the module notes).
 
     With n reversals over the D samples from the first fitted sample to the last, the input's
@@ -65,16 +65,20 @@ def shortest_time_constant(u, dt: float = 1.0, mask=None) -> float:
     **Arguments:** `u` (T,); `dt`, the sampling interval; `mask` (T,) or None, 1 on the fitted
     samples.
 
+    `sample_dt`: for a `u` sub-sampled from a record sampled every `sample_dt`, the floor counts
+    that record's samples (default `dt`).
+
     **Returns:** τ_min in the units of `dt`.
     """
+    floor = MIN_SAMPLES * (dt if sample_dt is None else sample_dt)
     u = np.asarray(u, np.float64)
     used = np.arange(u.size) if mask is None else np.flatnonzero(np.asarray(mask) > 0)
     if used.size == 0:
-        return MIN_SAMPLES * dt
+        return floor
     first, last = int(used[0]), int(used[-1])
     n = max(reversals(u[first : last + 1]), 1)
     omega = np.pi * n / max(last - first + 1, 1)
-    return max(MIN_SAMPLES, FLOOR_OMEGA_TAU / omega) * dt
+    return max(floor, FLOOR_OMEGA_TAU / omega * dt)
 
 
 def lag_base(k: int, shortest: float) -> np.ndarray:

@@ -18,7 +18,7 @@ from scipy.special import erf
 
 from ..basis import THRESHOLDS
 from ..effect import AbstractEffect
-from ..scaling import reversal_spread
+from ..scaling import MIN_SPREAD, reversal_spread
 
 # The plays whose relays' centre dependence the model fits, spread over the widths the
 # normalised input ([-1, 1]) opens (r = 0.125 ... 0.69); the narrowest is left out, since a
@@ -28,10 +28,6 @@ PLAYS = (2, 5, 8, 11)
 # output squared), or piecewise constant, stepping at the band edges (ramps (x - s_k)+): smooth
 # densities take the first, steps and narrow bumps the others.
 FORMS = {"linear": None, "two_bands": (0.0,), "four_bands": (-0.5, 0.0, 0.5)}
-# Loops whose reversal points move by less than this share of the input's range are one loop
-# traced again: the play terms would then only reshape that loop, as a function of the output
-# does, and say nothing of loops elsewhere.
-MIN_SPREAD = 0.1
 
 
 def _terms(H, form, xp):
