@@ -1,12 +1,13 @@
 """Synthetic records with hidden effects: a PI operator plus zero, one or two effects, and noise.
 
 Each effect is drawn in one of several physical forms, deliberately different from the forms the
-diagnosis fits (creep as slow exponentials or as a logarithmic law, dynamics of first or second
-order, asymmetry as an even output map, quadratic, a power of |v| or a cosh, or an input
-envelope, saturation as an odd output map, tanh, Langevin or algebraic, or a tanh of the input,
-delay applied to the input by interpolation, drift as a ramp, a warm-up exponential or a slow
-oscillation, minor-loop non-congruence as a relay density exponential in the loop centre or with a
-Gaussian or Lorentzian bump). Inputs start at rest; noise is white plus sensor quantisation.
+diagnosis fits (creep as slow exponentials of the output, or a logarithmic law of the output's
+or of the input's changes, dynamics of first or second order, asymmetry as an even output map,
+quadratic, a power of |v| or a cosh, or an input envelope, saturation as an odd output map,
+tanh, Langevin or algebraic, or a tanh of the input, delay applied to the input by
+interpolation, drift as a ramp, a warm-up exponential or a slow oscillation, minor-loop
+non-congruence as a relay density exponential in the loop centre or with a Gaussian or
+Lorentzian bump). Inputs start at rest; noise is white plus sensor quantisation.
 """
 
 import types

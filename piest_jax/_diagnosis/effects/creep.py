@@ -165,15 +165,21 @@ class Creep(AbstractEffect):
         c = prng.uniform(0.08, 0.2)
         taus = ctx.t[-1] * np.array([prng.uniform(0.01, 0.04), prng.uniform(0.1, 0.4)])
         t0 = prng.uniform(0.2, 1.0) / max(ctx.f0, 1e-9) / 10
-        if prng.random() < 0.5:
+        which = prng.random()
+        if which < 0.5:
             return {"form": "two slow exponential modes", "c": c, "taus": taus}
-        return {"form": "logarithmic, log(1 + t/t0)", "c": c, "t0": t0}
+        if which < 0.75:
+            return {"form": "logarithmic, log(1 + t/t0)", "c": c, "t0": t0}
+        return {"form": "logarithmic in the input's steps", "c": c, "t0": t0}
 
     def synth_output(self, state, ctx, v, y):
         c = state["c"]
         if "taus" in state:
             return v, y + c * sum(synthetic.lowpass(v, np.exp(-ctx.dt / tau)) - v for tau in state["taus"]) * 0.5
-        # Logarithmic creep: every output change keeps growing as log(1 + t/t0).
+        # Logarithmic creep: every change keeps growing as log(1 + t/t0), a change of the output
+        # (the displacement yields) or of the input (the drive's steps; scaled by the plain
+        # operator's gain, so that its size matches the other forms').
         kern = np.log1p(np.arange(len(ctx.t)) * ctx.dt / state["t0"])
         kern = kern / kern[-1]
-        return v, y + c * 1.5 * np.convolve(np.diff(v, prepend=v[0]), kern)[: len(ctx.t)]
+        d = v if state["form"].startswith("logarithmic,") else ctx.u * ctx.span0 / max(np.ptp(ctx.u), 1e-300)
+        return v, y + c * 1.5 * np.convolve(np.diff(d, prepend=d[0]), kern)[: len(ctx.t)]
