@@ -6,12 +6,14 @@ rate scale, the dominant period and the sampling step set the grids of the effec
 """
 
 import dataclasses
+import functools
 
 import numpy as np
 from scipy import signal as _signal
 
 from .._data.record import DataError, Record
 from .._identification.loop import loop_direction
+from .._identification.time_constants import shortest_time_constant
 from .basis import N_PLAYS, THRESHOLDS, plays, turning_samples
 
 MIN_SAMPLES = 200
@@ -99,13 +101,6 @@ def half_cycle(u, frac: float = 0.05) -> int:
 MIN_SPREAD = 0.1
 
 
-def one_loop(u) -> bool:
-    """Whether the record traces one loop again and again (`reversal_spread` < `MIN_SPREAD`):
-    an effect that would claim how loops elsewhere differ from it (an input envelope, a
-    density that depends on a loop's centre) is then undetermined by the record."""
-    return reversal_spread(u) < MIN_SPREAD
-
-
 def reversal_spread(u, frac: float = 0.05) -> float:
     """How far the record's loops move: the larger spread (10th to 90th percentile) of its upper
     and of its lower reversal points, as a share of the input's range (0 when one loop is traced
@@ -163,6 +158,26 @@ class Prepared:
         # The play weights are signed (`Scaling.signed_plays`), not kept >= 0.
         self.signed = bool(signed)
         self._plain = None
+
+    # What the effects' grids ask of the input in every round, computed once.
+
+    @functools.cached_property
+    def spread(self) -> float:
+        """How far the record's loops move (`reversal_spread` of the input)."""
+        return reversal_spread(self.u)
+
+    @property
+    def one_loop(self) -> bool:
+        """Whether the record traces one loop again and again (`spread` < `MIN_SPREAD`): an
+        effect that would claim how loops elsewhere differ from it (an input envelope, a
+        density that depends on a loop's centre) is then undetermined by the record."""
+        return self.spread < MIN_SPREAD
+
+    @functools.cached_property
+    def shortest_lag(self) -> float:
+        """The fastest creep lag `piest fit` allows on this record (`shortest_time_constant`,
+        its floor counted in samples of the full-rate record), in seconds."""
+        return shortest_time_constant(self.u, self.dt, sample_dt=self.sample_dt)
 
     def plain_plays(self):
         """The plays on the threshold grid from rest at the first sample (computed once)."""
@@ -309,5 +324,5 @@ def prepared(rec: Record, sc: Scaling, *, step: int = 1, folds: bool = False) ->
         play_rho=rho,
         keep=keep,
         signed=sc.signed_plays,
-        sample_dt=float(np.median(np.diff(rec.t))),
+        sample_dt=rec.dt,
     )

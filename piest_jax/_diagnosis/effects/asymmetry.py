@@ -4,7 +4,7 @@ Point symmetry is what an odd input map and an odd output map keep; the effect f
 parts: a quadratic term in the input before the plays and the even powers of the output after
 them. An output that bends both ends alike is the saturation effect's.
 
-On a record that traces one loop again and again (`scaling.one_loop`) the envelope is left out:
+On a record that traces one loop again and again (`Prepared.one_loop`) the envelope is left out:
 that loop's asymmetry is as well given by the output's even powers, and the two forms differ
 only on loops the record does not show (the envelope widens the minor loops on one side and
 narrows them on the other), so the record cannot say which to carry over.
@@ -13,7 +13,6 @@ narrows them on the other), so the record cannot say which to carry over.
 import numpy as np
 
 from ..output_map import OutputMapEffect, jax_powers, power_slopes, powers, synth_output_map
-from ..scaling import one_loop
 
 # The output polynomial's powers: the even ones, the part of an output map that breaks the
 # loop's point symmetry (the odd ones are the saturation effect's).
@@ -32,7 +31,7 @@ class Asymmetry(OutputMapEffect):
     n_params = n_terms + 1
 
     def grid(self, p):
-        if one_loop(p.u):
+        if p.one_loop:
             return [None]
         return [0.0, -0.4, -0.2, 0.2, 0.4]
 

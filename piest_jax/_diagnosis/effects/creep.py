@@ -27,7 +27,6 @@ from ..._identification.time_constants import (
     lag_base,
     lag_log_tau,
     lag_theta,
-    shortest_time_constant,
 )
 from ..._models.creep import lag_states
 from .. import synthetic
@@ -93,7 +92,7 @@ class Creep(AbstractEffect):
     def grid(self, p):
         duration = p.t[-1] - p.t[0]
         out = Lags(np.geomspace(min(0.1 * p.period, duration / 10), duration, N_OUTPUT_MODES), "output")
-        lo = shortest_time_constant(p.u, p.dt, sample_dt=p.sample_dt)
+        lo = p.shortest_lag
         # Every other of twice as many starts: those with no lag on its bound, where the
         # refinement's parametrisation would start it just above (`time_constants.lag_theta`).
         taus = initial_time_constants(N_INPUT_LAGS, p.dt, duration, lo, n_starts=2 * N_STARTS)[1::2]

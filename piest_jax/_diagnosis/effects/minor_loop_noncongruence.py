@@ -18,7 +18,7 @@ from scipy.special import erf
 
 from ..basis import THRESHOLDS
 from ..effect import AbstractEffect
-from ..scaling import MIN_SPREAD, reversal_spread
+from ..scaling import MIN_SPREAD
 
 # The plays whose relays' centre dependence the model fits, spread over the widths the
 # normalised input ([-1, 1]) opens (r = 0.125 ... 0.69); the narrowest is left out, since a
@@ -57,7 +57,7 @@ class MinorLoopNoncongruence(AbstractEffect):
     n_params = max(_count(f) for f in FORMS)
 
     def unidentifiable(self, p):
-        spread = reversal_spread(p.u)
+        spread = p.spread
         if spread < MIN_SPREAD:
             return (
                 f"the record's loops all sit at one height (reversal points spread over {spread:.0%} "

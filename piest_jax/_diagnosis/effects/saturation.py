@@ -16,7 +16,6 @@ import numpy as np
 
 from ..effect import refinement_factor
 from ..output_map import OutputMapEffect, jax_saturating, saturating, saturating_slopes, synth_output_map
-from ..scaling import one_loop
 
 # The output terms tanh(k vc) / k - vc: a mild and a strong flattening (with the linear term,
 # they follow the generator's saturation curves to within 0.1 % of the range, RMS).
@@ -62,7 +61,7 @@ class Saturation(OutputMapEffect):
         # On a record that traces one loop the envelope is left out, as the asymmetry
         # effect's is: the output terms shape that loop as well, and the two forms differ only
         # on loops the record does not show.
-        if one_loop(p.u):
+        if p.one_loop:
             return [NONE]
         return [NONE] + [(k, c) for k in STRENGTHS for c in CENTRES]
 
