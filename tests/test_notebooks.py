@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import shared_compile_cache
 
 nbformat = pytest.importorskip("nbformat")
 pytest.importorskip("nbclient")
@@ -91,7 +92,13 @@ def test_committed_notebook_is_current(src):
 
 
 @pytest.mark.parametrize("src", SOURCES, ids=IDS)
-def test_notebook_runs_with_small_sizes(src):
+def test_notebook_runs_with_small_sizes(src, monkeypatch):
+    # The kernel loads what the test session already compiled (tests/conftest.py).
+    folder = shared_compile_cache()
+    if folder is not None:
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", folder)
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
     nb = build.execute(build.load_source(src), small=True, timeout=300)
     assert nb.metadata["piest"]["small"] is True
     assert _errors(nb) == []
