@@ -189,6 +189,7 @@ def test_the_only_candidate_is_kept_undetermined_and_not_listed_as_rejected():
     assert not ch.fit.determined and "thresholds[2]" in ch.fit.undetermined_names
 
 
+@pytest.mark.optimized
 @pytest.mark.parametrize("method", _cov.METHODS)
 def test_calibration_over_noise_draws(method):
     # 200 white-noise draws: the sample standard deviation of each estimate is then known to

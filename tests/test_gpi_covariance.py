@@ -40,6 +40,7 @@ def test_jacobian_matches_finite_differences(states):
         )
 
 
+@pytest.mark.optimized
 @pytest.mark.parametrize("method", _cov.METHODS)
 def test_calibration_over_noise_draws(method):
     # 200 white-noise draws: the sample standard deviation of each estimate is known to about
