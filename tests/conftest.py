@@ -13,8 +13,7 @@ import tempfile
 # estimators, fits, gradients and Monte Carlo map that way. The variable is set before JAX is
 # imported so that the `piest` processes and notebook kernels the tests start inherit it.
 OPTIMIZED = os.environ.get("PIEST_TEST_OPTIMIZED", "").strip().lower() in {"1", "yes", "true", "on"}
-if not OPTIMIZED:
-    os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"
+os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "0" if OPTIMIZED else "1"
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -54,12 +53,12 @@ def pytest_configure(config):
 
 
 def shared_compile_cache() -> str | None:
-    """The folder of compiled programs this test session shares, or None when the user's
-    `PIEST_COMPILE_CACHE` turns caching off."""
-    folder = os.environ.get("PIEST_COMPILE_CACHE", "").strip()
-    if folder.lower() in {"", "off", "0", "no", "false"} or not os.path.isdir(folder):
-        return None
-    return folder
+    """The folder of compiled programs this test session shares, read from `PIEST_COMPILE_CACHE`
+    as `piest` reads it, or None when that turns caching off."""
+    from piest_jax._cli.compile_cache import cache_folder
+
+    folder = cache_folder()
+    return str(folder) if folder is not None and folder.is_dir() else None
 
 
 def pytest_unconfigure(config):

@@ -168,8 +168,8 @@ class Creep(AbstractEffect):
         if which < 0.5:
             return {"form": "two slow exponential modes", "c": c, "taus": taus}
         if which < 0.75:
-            return {"form": "logarithmic, log(1 + t/t0)", "c": c, "t0": t0}
-        return {"form": "logarithmic in the input's steps", "c": c, "t0": t0}
+            return {"form": "logarithmic, log(1 + t/t0)", "c": c, "t0": t0, "drive": "output"}
+        return {"form": "logarithmic in the input's steps", "c": c, "t0": t0, "drive": "input"}
 
     def synth_output(self, state, ctx, v, y):
         c = state["c"]
@@ -180,5 +180,5 @@ class Creep(AbstractEffect):
         # operator's gain, so that its size matches the other forms').
         kern = np.log1p(np.arange(len(ctx.t)) * ctx.dt / state["t0"])
         kern = kern / kern[-1]
-        d = v if state["form"].startswith("logarithmic,") else ctx.u * ctx.span0 / max(np.ptp(ctx.u), 1e-300)
+        d = v if state["drive"] == "output" else ctx.u * ctx.span0 / max(np.ptp(ctx.u), 1e-300)
         return v, y + c * 1.5 * np.convolve(np.diff(d, prepend=d[0]), kern)[: len(ctx.t)]
