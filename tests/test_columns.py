@@ -215,3 +215,30 @@ def test_every_command_reading_a_record_says_its_time_counts_samples(tmp_path, c
         assert code == 0, err
         assert unit(json.loads((out / name).read_text())) == "sample"
         assert f"piest {command}: note: {data} has no time in seconds: t counts samples (step 1)" in err
+
+
+def test_segments_are_joined_in_the_files_order(tmp_path, capsys):
+    # Loops of growing amplitude, each a segment: without --segment the data file and the
+    # --validate file are taken one segment after another, as the same rows written as one run.
+    k = np.arange(120)
+    h = np.repeat([1.0, 2.0, 3.0], 40) * np.cos(2 * np.pi * k / 40)
+    b = np.asarray(pj.PIOperator([0.0, 0.4], [1.0, 0.5])(h)) + 0.01 * np.sin(0.37 * k)
+    loops, run = tmp_path / "loops.csv", tmp_path / "run.csv"
+    loops.write_text(
+        "segment,H,B\n" + "".join(f"{i // 40},{a!r},{c!r}\n" for i, a, c in zip(k, h.tolist(), b.tolist()))
+    )
+    run.write_text("H,B\n" + "".join(f"{a!r},{c!r}\n" for a, c in zip(h.tolist(), b.tolist())))
+    fits, errs = [], []
+    for name, path in (("a", loops), ("b", run)):
+        argv = ["fit", str(path), "--columns", "H,B", "--validate", str(loops), "--model", "pi", "--plays", "2"]
+        code, _, err = _run(capsys, [*argv, "--starts", "2", "--max-steps", "30", "--out", str(tmp_path / name)])
+        assert code == 0, err
+        fits.append(json.loads((tmp_path / name / "fit.json").read_text()))
+        errs.append(err)
+    a, b_ = fits
+    for key in ("thresholds", "weights", "rmse", "validation_rmse", "validation_rmse_ic"):
+        np.testing.assert_allclose(a[key], b_[key], rtol=1e-12, atol=0)
+    assert a["segments_joined"] == 3 and "segments_joined" not in b_ and a["n_samples"] == 120
+    note = f"{loops} holds 3 segments, taken one after another in the file's order: the plays' memory runs on"
+    assert note in errs[0] and "; --segment LABEL takes one of them" in errs[0]
+    assert note in errs[1] and "--segment LABEL" not in errs[1].split(note)[1].split("\n")[0]

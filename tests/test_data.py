@@ -437,18 +437,39 @@ def test_each_segment_is_checked_on_its_own(tmp_path):
     rec = load_record(slow, resample=True)
     assert [p.n_samples for p in rec.segments()] == [10, 19, 10]
     np.testing.assert_allclose(np.diff(rec.segments()[1].t), 0.5)
-    with pytest.raises(DataError, match=r"segment 1 \(row 12\) has only 3 samples; at least 8"):
-        load_record(
-            _csv(
-                tmp_path,
-                "\n".join(
-                    ["segment,t,u,y"]
-                    + [f"0,{j},{np.sin(j)},{j}" for j in range(10)]
-                    + [f"1,{j},{np.sin(j)},{j}" for j in range(3)]
-                )
-                + "\n",
-            )
-        )
+    # A short segment (a reversal curve that starts near saturation) is data; one of them taken
+    # alone, and a whole record, must hold the minimum.
+    short = "\n".join(
+        ["segment,t,u,y"] + [f"0,{j},{np.sin(j)},{j}" for j in range(10)] + [f"1,{j},{np.sin(j)},{j}" for j in range(3)]
+    )
+    rec = load_record(_csv(tmp_path, short + "\n2,0,0.5,0.5\n"))
+    assert [p.n_samples for p in rec.segments()] == [10, 3, 1]
+    with pytest.raises(DataError, match=r"segment 1 has only 3 samples; at least 8 are needed"):
+        rec.select_segment(1)
+    with pytest.raises(DataError, match=r"only 6 samples; at least 8 are needed"):
+        load_record(_csv(tmp_path, "segment,t,u,y\n" + "".join(f"{k // 3},{k % 3},{k},{k}\n" for k in range(6))))
+
+
+def test_joined_segments_follow_one_another(tmp_path):
+    rec = load_record(_segmented(tmp_path, [3, 1, 2]))
+    j = rec.joined()
+    # One uniform time through all segments, from the first sample; samples, order and labels kept.
+    np.testing.assert_allclose(j.t, 0.5 * np.arange(30), rtol=0, atol=1e-12)
+    for name in ("u", "y", "segment"):
+        np.testing.assert_array_equal(getattr(j, name), getattr(rec, name))
+    assert j.n_segments == 3 and [p.n_samples for p in j.segments()] == [10, 10, 10]
+    # The plays run through it as through the samples written as one run.
+    op = pj.PIOperator([0.0, 0.3], [1.0, 2.0])
+    np.testing.assert_array_equal(np.asarray(op(j.u)), np.asarray(op(np.concatenate([p.u for p in rec.segments()]))))
+    one = load_record(_csv(tmp_path, "t,u,y\n" + "".join(f"{k},{k % 3},{k}\n" for k in range(9)), "one.csv"))
+    assert one.joined() is one
+    index = load_record(_csv(tmp_path, "segment,u,y\n" + "".join(f"{k // 4},{k},{k}\n" for k in range(12)), "i.csv"))
+    np.testing.assert_array_equal(index.joined().t, np.arange(12.0))
+    singles = Record.from_arrays(
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], np.arange(8.0), np.arange(8.0), segment=np.arange(8)
+    )
+    with pytest.raises(DataError, match="no segment has two samples"):
+        singles.joined()
 
 
 def test_a_segment_column_of_an_index_record(tmp_path):
@@ -458,3 +479,24 @@ def test_a_segment_column_of_an_index_record(tmp_path):
     np.testing.assert_array_equal(rec.t, np.arange(36.0))
     seg = Record.from_arrays(None, rec.u, rec.y, segment=rec.segment)
     np.testing.assert_array_equal(seg.segment, rec.segment)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_joined_reversal_curves_keep_the_history_they_were_measured_after(seed):
+    # First-order reversal curves: the input comes down from saturation to a reversal field
+    # (not recorded), then goes up to saturation (recorded, one segment per curve). The plays
+    # run on the joined record equal the plays run on the whole history, at the recorded
+    # samples: a monotone descent leaves the state the direct jump leaves.
+    rng = np.random.default_rng(seed)
+    sat, whole, at, labels = 1.0, [1.0], [0], [0]
+    for i, hr in enumerate(np.sort(rng.uniform(-sat, sat, 12))):
+        whole += list(np.linspace(sat, hr, int(rng.integers(3, 30)))[1:-1])
+        up = np.linspace(hr, sat, int(rng.integers(2, 25)))
+        at += range(len(whole), len(whole) + len(up))
+        whole += list(up)
+        labels += [i + 1] * len(up)
+    history = np.asarray(whole)
+    op = pj.PIOperator(np.linspace(0.0, 0.8, 6), rng.uniform(0.2, 1.0, 6))
+    rec = Record.from_arrays(None, history[at], history[at], segment=labels).joined()
+    assert rec.n_segments == 13
+    np.testing.assert_allclose(np.asarray(op(rec.u)), np.asarray(op(history))[at], rtol=0, atol=1e-12)

@@ -61,7 +61,16 @@ def files(tmp_path):
             for k, (a, b, c) in enumerate(zip((T % 1).tolist(), U.tolist(), Y.tolist()))
         )
     )
-    return {"rec": str(rec), "gap": str(gap), "model": str(model), "seg": str(seg), "dir": tmp_path}
+    short = tmp_path / "short.csv"
+    short.write_text("segment,t,u,y\n" + "".join(f"{int(k >= 20)},{k},{k % 7},{k % 5}\n" for k in range(25)))
+    return {
+        "rec": str(rec),
+        "gap": str(gap),
+        "model": str(model),
+        "seg": str(seg),
+        "short": str(short),
+        "dir": tmp_path,
+    }
 
 
 def _run(capsys, argv, *, stop=True):
@@ -152,23 +161,11 @@ CASES = [
     (["simulate", "--input", "csv", "--csv", "{gap}"], "(CLI: --resample)"),
     (["diagnose", "{gap}"], "(CLI: --resample)"),
     (["estimate", "{gap}"], "(CLI: --resample)"),
-    # a record of several segments: no command runs across their boundaries
-    (
-        ["fit", "{seg}", "--plays", "2"],
-        "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not "
-        "continuous in time, and the plays' memory would run on from one into the next; choose one with --segment",
-    ),
-    (["diagnose", "{seg}"], "{seg} holds 3 segments"),
-    (["estimate", "{seg}"], "{seg} holds 3 segments"),
-    (["simulate", "--input", "csv", "--csv", "{seg}"], "{seg} holds 3 segments"),
+    # a record of several segments: one of them, when asked for, must hold a record's minimum
+    (["fit", "{short}", "--segment", "1"], "{short}: segment 1 has only 5 samples; at least 8 are needed"),
     (["fit", "{seg}", "--segment", "5"], "{seg}: no segment labelled 5; the labels are 0, 1, 2"),
     (["fit", "{rec}", "--segment", "0"], "{rec}: no `segment` column to select segment 0 from"),
     (["simulate", "--segment", "1"], "--segment is only used with --input csv"),
-    (
-        ["fit", "{seg}", "--segment", "1", "--validate", "{seg}"],
-        "{seg} holds 3 segments (labels 0, 1, 2): their boundaries are not continuous in time, and the plays' "
-        "memory would run on from one into the next; give a record of one segment to --validate",
-    ),
     (["fit", "{seg}", "--segment", "nan"], "argument --segment: must be a finite number"),
 ]
 

@@ -127,19 +127,21 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
         "--segment",
         type=finite_float,
         metavar="LABEL",
-        help="of a record with a `segment` column (several loops or reversal curves), use the segment with this label",
+        help="of a record with a `segment` column (several loops or reversal curves), use the segment with this "
+        "label (default: all of them, one after another in the file's order)",
     )
 
 
 def read_record(path, args, *, validation: bool = False):
-    """The record `path` as the options of `add_record_options` ask: one segment of it, and a
-    note on stderr when its time counts samples.
+    """The record `path` as the options of `add_record_options` ask: one segment of it, or all
+    of its segments joined, and a note on stderr when its time counts samples.
 
     **Arguments:** `path`, the data file; `args`, the parsed options; `validation`, the file is
     a `--validate` record, to which `--segment` (a label of the data file) does not apply.
 
-    **Returns:** the [`Record`][piest_jax.Record]. Raises `CLIError` for a record of several
-    segments without `--segment`: the plays' memory would run on from one segment into the next.
+    **Returns:** the [`Record`][piest_jax.Record]. A record of several segments without
+    `--segment` is [joined][piest_jax.Record.joined] (the plays' memory runs on from each
+    segment into the next), with a note that says so.
     """
     from .._data.record import load_record
 
@@ -147,11 +149,13 @@ def read_record(path, args, *, validation: bool = False):
     if args.segment is not None and not validation:
         rec = rec.select_segment(args.segment)
     elif rec.n_segments > 1:
-        labels = ", ".join(f"{s.segment[0]:g}" for s in rec.segments() if s.segment is not None)
-        choose = "give a record of one segment to --validate" if validation else "choose one with --segment LABEL"
-        raise CLIError(
-            f"{path} holds {rec.n_segments} segments (labels {labels}): their boundaries are not "
-            f"continuous in time, and the plays' memory would run on from one into the next; {choose}"
+        rec = rec.joined()
+        choose = "" if validation else "; --segment LABEL takes one of them"
+        note(
+            args,
+            f"{path} holds {rec.n_segments} segments, taken one after another in the file's order: "
+            "the plays' memory runs on from each into the next, as when they were measured in "
+            f"sequence (reversal curves, loops of growing amplitude){choose}",
         )
     if rec.time_is_index:
         note_sample_time(args, path)
@@ -169,10 +173,13 @@ def note_sample_time(args, path) -> None:
 
 def record_fields(rec, args) -> dict:
     """What a command's JSON says of how its record was read: `time_unit` "sample" when the
-    time counts samples, the `segment` chosen with --segment; nothing for an ordinary record."""
-    fields = {"time_unit": "sample"} if rec.time_is_index else {}
+    time counts samples, the `segment` chosen with --segment, `segments_joined` (how many) when
+    all of a record's segments were taken one after another; nothing for an ordinary record."""
+    fields: dict = {"time_unit": "sample"} if rec.time_is_index else {}
     if getattr(args, "segment", None) is not None:
         fields["segment"] = args.segment
+    elif rec.n_segments > 1:
+        fields["segments_joined"] = rec.n_segments
     return fields
 
 

@@ -134,6 +134,8 @@ class _Record:
             self.source, self.held, self.t0 = (stream, None), 0, stream.t0
             self.u_min, self.u_max = stream.u_min, stream.u_max
         self.dt, self.n_samples, self.time_is_index = rec.dt, rec.n_samples, rec.time_is_index
+        # A file with a `segment` column is read whole, never streamed.
+        self.n_segments = rec.n_segments if stream is None else 1
 
 
 def _stream(args):

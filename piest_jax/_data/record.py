@@ -80,8 +80,38 @@ class Record:
             _fail(self.source, f"no `{SEGMENT}` column to select segment {_label(label)} from")
         for a, b in _segment_bounds(self.segment, self.source):
             if self.segment[a] == label:
+                if b - a < MIN_SAMPLES:
+                    _fail(
+                        self.source,
+                        f"segment {_label(label)} has only {b - a} samples; at least {MIN_SAMPLES} are needed",
+                    )
                 return self.slice(a, b)
         _fail(self.source, f"no segment labelled {_label(label)}; the labels are {_labels(self.segment)}")
+
+    def joined(self) -> "Record":
+        """The segments as one run: each follows the one before without a gap.
+
+        Time is stamped again on one uniform grid through all segments (the sample count for a
+        record whose time counts samples); the samples, their order and the segment labels are
+        kept. A model run on it carries the plays' memory from each segment into the next, as
+        if the input had gone straight from one segment's last sample to the next one's first:
+        what the material keeps when the segments were measured one after another, as reversal
+        curves (each starting where the input came down to from saturation) and loops of
+        growing amplitude are. Time-driven parts of a model (creep, dynamics) see no pause at
+        a boundary. A record of one segment is returned as it is.
+        """
+        if self.n_segments == 1:
+            return self
+        step = 1.0
+        if not self.time_is_index:
+            # The step inside the segments (the loader held them all to one).
+            bounds = _segment_bounds(self.segment, self.source)
+            steps = np.concatenate([np.diff(self.t[a:b]) for a, b in bounds])
+            if steps.size == 0:
+                _fail(self.source, "no segment has two samples, so the record states no time step to join them on")
+            step = float(np.median(steps))
+        t = self.t[0] + step * np.arange(self.n_samples, dtype=np.float64)
+        return dataclasses.replace(self, t=t)
 
     @property
     def n_samples(self) -> int:
@@ -335,6 +365,8 @@ def _record(t, u, y, extras, source, rows, segment, time_is_index, **opts):
     if segment is None:
         t, u, y, extras = _validate(t, u, y, extras, source, rows, **opts)
         return Record(t, u, y, extras, source, None, time_is_index)
+    if len(t) < opts["min_samples"]:
+        _validate(t, u, y, extras, source, rows, **opts)  # names the shortfall
     parts = []
     bounds = _segment_bounds(segment, source, rows)
     # One step for the whole record: the median over the steps inside the segments.
@@ -353,7 +385,9 @@ def _record(t, u, y, extras, source, rows, segment, time_is_index, **opts):
                 None if rows is None else rows[a:b],
                 step=step,
                 part=f"{label} ({_where(a, rows)})",
-                **opts,
+                # A segment may be short (a reversal curve that starts near saturation): the
+                # record as a whole holds min_samples.
+                **{**opts, "min_samples": 1},
             )
         )
         parts[-1] = (*parts[-1], np.full(len(parts[-1][0]), segment[a]))
@@ -384,7 +418,10 @@ def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resam
         row = rows[k + 1] if rows is not None else None
         what = "repeats" if dt[k] == 0 else "goes backwards"
         _fail(source, f"time is not strictly increasing: t = {float(t[k + 1]):.10g} {what}", row)
-    step = float(np.median(dt)) if step is None else step
+    if step is None:
+        if not dt.size:  # one sample of a segment: nothing to check
+            return t, u, y, extras
+        step = float(np.median(dt))
     dev = np.abs(dt - step) / step
     if np.any(dev > dt_tolerance):
         if not resample:

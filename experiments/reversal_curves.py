@@ -1,0 +1,159 @@
+"""`piest fit` and `piest diagnose` with their defaults on first-order reversal curves: fit on
+every other curve, predict the curves in between, against a plain 20-play least-squares PI with
+signed weights (`pj.uniform_pi`). Writes experiments/results/reversal_curves.json.
+
+The curves come from a generator of this script's own, not the project's model classes: a
+relay (Preisach) model on a fine grid of switching fields, its density a log-normal in the
+coercive field times a Gaussian in the interaction field, a reversible part, and a saturating
+output. Each curve starts at positive saturation, comes down to its reversal field (not
+recorded), then goes up to saturation again (recorded, one `segment` per curve), as a FORC
+measurement does. The files carry the segment column, so the commands take the curves one after
+another (`docs/data.md`).
+
+    python experiments/reversal_curves.py            # ~6 min on 2 cores
+"""
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+import piest_jax as pj  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "experiments" / "results"
+
+# Three materials: (coercive field median, its log-spread, interaction spread, reversible share,
+# output saturation gain).
+MATERIALS = {
+    "soft": (0.12, 0.35, 0.06, 0.10, 1.0),
+    "hard": (0.45, 0.30, 0.10, 0.05, 1.6),
+    "spread": (0.25, 0.70, 0.15, 0.20, 1.3),
+}
+
+
+class Relays:
+    """A relay model: relay (a, b) with a >= b switches up at u >= a and down at u <= b."""
+
+    def __init__(self, hc0, spread, interaction, k=80, span=1.3):
+        a = np.linspace(-span, span, k)
+        self.up, self.down = np.meshgrid(a, a, indexing="ij")
+        keep = self.up >= self.down
+        hc, hi = (self.up - self.down) / 2, (self.up + self.down) / 2
+        with np.errstate(divide="ignore"):
+            log_hc = np.log(np.where(keep, np.maximum(hc, 1e-9), 1.0) / hc0)
+        mu = np.exp(-(log_hc**2) / (2 * spread**2) - hi**2 / (2 * interaction**2)) * keep
+        self.mu = mu / mu.sum()
+        self.state = -np.ones_like(self.mu)
+        self.keep = keep
+
+    def run(self, u):
+        out = np.empty(len(u))
+        for i, v in enumerate(u):
+            self.state[(self.up <= v) & self.keep] = 1.0
+            self.state[(self.down >= v) & self.keep] = -1.0
+            out[i] = np.sum(self.mu * self.state)
+        return out
+
+
+def curves(material, n_curves, step, noise, seed):
+    """Rows (segment, H, B) of `n_curves` reversal curves, the reversal fields uniform in
+    [-1, 1)."""
+    hc0, spread, interaction, reversible, gain = MATERIALS[material]
+    rng = np.random.default_rng(seed)
+    relays = Relays(hc0, spread, interaction)
+    relays.run(np.linspace(-1.0, 1.0, 200))  # the major loop's ascending branch, to saturation
+    rows = []
+    for i, hr in enumerate(np.linspace(-1.0, 1.0, n_curves, endpoint=False)):
+        relays.run(np.arange(1.0, hr, -step))
+        h = np.arange(hr, 1.0 + 1e-9, step)
+        m = (1 - reversible) * relays.run(h) + reversible * np.tanh(3 * h)
+        b = np.tanh(gain * m) / np.tanh(gain) + rng.normal(0.0, noise, len(h))
+        rows += [(i, hh, bb) for hh, bb in zip(h, b)]
+    return np.asarray(rows)
+
+
+def write(path, rows):
+    np.savetxt(path, rows, delimiter=",", header="segment,H,B", comments="", fmt=["%d", "%.7f", "%.7f"])
+
+
+def baseline(train, val):
+    """The plain 20-play least-squares PI (signed weights) fitted on the training curves joined,
+    run on the validation curves joined from rest at their first input."""
+    fit = pj.uniform_pi(train[:, 1], train[:, 2], 20)
+    op = pj.PIOperator(fit.thresholds, fit.weights, initial_states=val[0, 1])
+    pred = np.asarray(op(val[:, 1])) + float(fit.offset)
+    return float(np.sqrt(np.mean((pred - val[:, 2]) ** 2)))
+
+
+def one(material, n_curves, step, noise, seed, work):
+    rows = curves(material, n_curves, step, noise, seed)
+    train, val = rows[rows[:, 0] % 2 == 0], rows[rows[:, 0] % 2 == 1]
+    tr, va = work / f"{material}_train.csv", work / f"{material}_val.csv"
+    write(tr, train)
+    write(va, val)
+    base = baseline(train, val)
+    res = {"samples": len(rows), "train_samples": len(train), "curves": n_curves, "baseline_rmse": base}
+    t0 = time.time()
+    out = work / f"{material}_fit"
+    rc = pj.run_cli(["fit", str(tr), "--columns", "H,B", "--validate", str(va), "--out", str(out), "--quiet"])
+    fit = json.loads((out / "fit.json").read_text())
+    res["fit"] = {
+        "rc": rc,
+        "seconds": time.time() - t0,
+        "structure": fit["structure"],
+        "n_plays": fit.get("n_plays"),
+        "validation_rmse": fit["validation_rmse"],
+        "ratio": fit["validation_rmse"] / base,
+        "segments_joined": fit.get("segments_joined"),
+    }
+    t0 = time.time()
+    out = work / f"{material}_diagnose"
+    rc = pj.run_cli(["diagnose", str(tr), "--columns", "H,B", "--validate", str(va), "--out", str(out), "--quiet"])
+    rep = json.loads((out / "report.json").read_text())
+    res["diagnose"] = {
+        "rc": rc,
+        "seconds": time.time() - t0,
+        "effects": rep["effects"],
+        "validation_baseline_rmse": rep["validation"]["baseline_rmse"],
+        "validation_final_rmse": rep["validation"]["final_rmse"],
+        "ratio": rep["validation"]["final_rmse"] / base,
+    }
+    return res
+
+
+def main_():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--curves", type=int, default=120)
+    ap.add_argument("--step", type=float, default=0.008)
+    ap.add_argument("--noise", type=float, default=0.002)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=str(RESULTS / "reversal_curves.json"))
+    args = ap.parse_args()
+    res = {"settings": vars(args).copy(), "materials": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, name in enumerate(MATERIALS):
+            r = one(name, args.curves, args.step, args.noise, args.seed + i, Path(tmp))
+            res["materials"][name] = r
+            print(
+                f"{name}: {r['samples']} samples; PI 20 plays {r['baseline_rmse']:.4f}; "
+                f"fit {r['fit']['structure']} {r['fit']['validation_rmse']:.4f} ({r['fit']['ratio']:.2f}x, "
+                f"{r['fit']['seconds']:.0f} s); diagnose {r['diagnose']['effects']} "
+                f"{r['diagnose']['validation_final_rmse']:.4f} ({r['diagnose']['ratio']:.2f}x, "
+                f"{r['diagnose']['seconds']:.0f} s)",
+                flush=True,
+            )
+    res["settings"]["out"] = os.path.relpath(res["settings"]["out"], ROOT)
+    Path(args.out).write_text(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    main_()
