@@ -112,6 +112,8 @@ _EXPORTS = {
     "ModelChoice": ("._identification.model_structure", "ModelChoice"),
     "select_model": ("._identification.model_structure", "select_model"),
     "PreisachCandidate": ("._identification.preisach_candidate", "PreisachCandidate"),
+    "GPICandidate": ("._identification.gpi_candidate", "GPICandidate"),
+    "saturation_gate": ("._identification.gpi_candidate", "saturation_gate"),
     "Identification": ("._identification.identify", "Identification"),
     "Validation": ("._identification.identify", "Validation"),
     "identify": ("._identification.identify", "identify"),
@@ -274,6 +276,8 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.fit_gpi import fit_gpi as fit_gpi
     from ._identification.fit_preisach import PreisachFit as PreisachFit
     from ._identification.fit_preisach import fit_preisach as fit_preisach
+    from ._identification.gpi_candidate import GPICandidate as GPICandidate
+    from ._identification.gpi_candidate import saturation_gate as saturation_gate
     from ._identification.identify import Identification as Identification
     from ._identification.identify import Validation as Validation
     from ._identification.identify import identify as identify

@@ -9,6 +9,7 @@ from .._identification.band import prediction_band
 from .._identification.covariance import table as parameter_table
 from .._identification.figures import fit_figure
 from .._identification.fit import LONG_RECORD, SOLVERS, PIFit
+from .._identification.fit_gpi import GPIFit
 from .._identification.fit_preisach import PreisachFit
 from .._identification.identify import MODELS, SATURATING, check_options, fit_mask, identify, plan
 from .._identification.model_size import CRITERIA
@@ -91,8 +92,11 @@ are refused. --model auto also tries a non-negative 16 x 16 Preisach model (with
 non-negative weights and unfitted initial states): scored on the same held-out block, fitted on
 the whole record only if it scores better than the best PI candidate by 1 %, and chosen only if
 that fit leaves no parameter undetermined (fit.json's selection.preisach: score, undetermined,
-chosen): a record that repeats one loop never determines it (Aye: 93 of 145). The generalized PI
-is not among auto's choices.
+chosen): a record that repeats one loop never determines it (Aye: 93 of 145). Where the output
+saturates (a saturating function of a 16-play positive-weight PI's output leaves at most half its
+error), --model auto also tries the generalized PI with 2, 3, 4, 6, 8 plays on the same block,
+chosen only if it beats the best model so far by 1 % with every parameter determined
+(selection.gpi: gate, plays, scores, n_plays, score, undetermined, chosen).
 
 A candidate with a parameter the record does not determine (see fit.md; judged on the whole
 record, held-out block included) is never chosen; one with creep that would have scored best is
@@ -146,8 +150,8 @@ def add_arguments(p):
         "--model",
         choices=MODELS,
         default="auto",
-        help="auto (default): choose pi, pi+creep or (where the record determines it) preisach by "
-        "held-out error; pi: plays only; "
+        help="auto (default): choose pi, pi+creep or (where the record determines them) preisach, or gpi "
+        "where the output saturates, by held-out error; pi: plays only; "
         "pi+creep: plays and a creep of first-order lags; gpi: plays, then a saturating "
         "output function (needs --plays N); preisach: a discrete Preisach model",
     )
@@ -316,7 +320,7 @@ def run(args) -> int:
         quiet=args.quiet,
     )
     note_loop(args, result.loop, result.positive_weights)
-    if isinstance(result.fit, PreisachFit):  # chosen by --model auto
+    if isinstance(result.fit, GPIFit | PreisachFit):  # chosen by --model auto
         return fit_saturating.write(args, result, out)
     f = result.fit
     assert isinstance(f, PIFit)  # the models that saturate are fitted by fit_saturating.run

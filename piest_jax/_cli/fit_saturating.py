@@ -155,6 +155,16 @@ def _markdown(args, report, table="") -> str:
             f"| {k + 1} | {a:.6g} | {c:.6g} | {s:.6g} |"
             for k, (a, c, s) in enumerate(zip(g["amplitudes"], g["centres"], g["scales"]))
         ]
+        chosen = report.get("selection", {}).get("gpi")
+        if chosen is not None:
+            lines += [
+                "",
+                f"Chosen by --model auto: the output saturates (a saturating function of the best PI "
+                f"model's output leaves {chosen['gate']:.2g} of its error); held-out RMSE "
+                f"{chosen['score']:.4g} against the best PI candidate's "
+                f"{min(m['score'] for m in report['selection']['models'] if not m['rejected']):.4g}, "
+                "every parameter determined by the record.",
+            ]
         if table:
             method = report["covariance"]["method"]
             lines += ["", f"Standard errors ({method}):", "", table.rstrip("\n")]

@@ -27,6 +27,7 @@ from .compare import Comparison, compare
 from .fit import PIFit, fit_pi
 from .fit_gpi import GPIFit
 from .fit_preisach import PreisachFit
+from .gpi_candidate import gpi_candidate
 from .holdout import HOLDOUT, holdout_mask
 from .identify_saturating import (
     SATURATING,
@@ -224,6 +225,7 @@ def _selection_keys(sel) -> dict:
         ],
         "selection_samples": sel.selection_samples,
         **({} if sel.preisach is None else {"preisach": sel.preisach.to_json()}),
+        **({} if sel.gpi is None else {"gpi": sel.gpi.to_json()}),
     }
 
 
@@ -500,7 +502,7 @@ def identify(
         record, p, model=model, plays=plays, criterion=criterion or "holdout", quiet=quiet, **fit_options
     )
     checked = None
-    if validation is not None and isinstance(fit, PreisachFit):
+    if validation is not None and isinstance(fit, GPIFit | PreisachFit):
         checked = _validate_saturating(fit, validation, initial_states, fit_initial_states)
     elif validation is not None:
         checked = _validate(fit, record, validation, initial_states, fit_initial_states)
@@ -530,6 +532,23 @@ def _choose_and_fit(record, p: Plan, *, model, plays, criterion, quiet, **fit_op
             np.asarray(u), np.asarray(y), p.mask, best, initial_states=fit_options["initial_states"]
         )
         choice = dataclasses.replace(choice, preisach=candidate, fit=choice.fit if fit is None else fit)
+        # And a generalized PI where the output saturates (`gpi_candidate.py`), against the
+        # best model so far.
+        gpi, gpi_fit = gpi_candidate(
+            np.asarray(u),
+            np.asarray(y),
+            p.mask,
+            candidate.score if candidate.chosen else best,
+            initial_states=fit_options["initial_states"],
+            n_starts=fit_options["n_starts"],
+            key=fit_options["key"],
+            max_steps=fit_options["max_steps"],
+        )
+        if gpi_fit is not None:
+            candidate = dataclasses.replace(candidate, chosen=False)
+        choice = dataclasses.replace(
+            choice, preisach=candidate, gpi=gpi, fit=choice.fit if gpi_fit is None else gpi_fit
+        )
     return choice.fit, choice
 
 

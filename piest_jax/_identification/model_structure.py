@@ -43,7 +43,9 @@ import numpy as np
 from .. import _checks
 from .._progress import progress
 from .fit import PIFit, fit_pi
+from .fit_gpi import GPIFit
 from .fit_preisach import PreisachFit
+from .gpi_candidate import GPICandidate
 from .holdout import HOLDOUT, SHARED_UP_TO, holdout_split
 from .preisach_candidate import PreisachCandidate
 
@@ -57,30 +59,36 @@ class ModelChoice:
     **Fields:**
 
     - `n_plays`, `n_lags`: the chosen counts (the best PI candidate's when a Preisach model
-      was chosen); `structure`: `"pi"`, `"pi+creep"` or `"preisach"`.
+      or a generalized PI was chosen); `structure`: `"pi"`, `"pi+creep"`, `"preisach"` or
+      `"gpi"`.
     - `candidates`: the (n_plays, n_lags) pairs tried, in order; `scores`: their held-out RMSE.
     - `fit`: the chosen model fitted on the whole record (a [`PIFit`][], or the
-      [`PreisachFit`][] when `preisach.chosen`).
+      [`PreisachFit`][] when `preisach.chosen`, the [`GPIFit`][] when `gpi.chosen`).
     - `rejected`: the (n_plays, n_lags) pairs not chosen because a parameter was undetermined.
     - `selection_samples`: the samples the candidates were fitted and scored on (the whole
       record, or its first stretch: `selection_stretch`).
     - `preisach`: how the Preisach candidate of [`identify`][piest_jax.identify]'s
       `model="auto"` fared (a [`PreisachCandidate`][]), or None when it was not tried
       ([`select_model`][] alone never tries it).
+    - `gpi`: how the generalized-PI candidate of `model="auto"` fared (a [`GPICandidate`][]),
+      or None when it was not tried.
     """
 
     n_plays: int
     n_lags: int
     candidates: tuple
     scores: tuple
-    fit: PIFit | PreisachFit
+    fit: PIFit | PreisachFit | GPIFit
     rejected: tuple = ()
     selection_samples: int | None = None
     preisach: PreisachCandidate | None = None
+    gpi: GPICandidate | None = None
 
     @property
     def structure(self) -> str:
-        """`"pi"`, `"pi+creep"` or `"preisach"`."""
+        """`"pi"`, `"pi+creep"`, `"preisach"` or `"gpi"`."""
+        if self.gpi is not None and self.gpi.chosen:
+            return "gpi"
         if self.preisach is not None and self.preisach.chosen:
             return "preisach"
         return "pi" if self.n_lags == 0 else "pi+creep"
