@@ -97,7 +97,7 @@ def run(args) -> int:
     )
     check_record(rec)
     if val is not None:
-        check_record(val)
+        check_record(val, validation=True)
     diagnosis = diagnose(
         rec,
         val,

@@ -159,8 +159,8 @@ def _markdown(args, report, table="") -> str:
         if chosen is not None:
             lines += [
                 "",
-                f"Chosen by --model auto: the output saturates (a saturating function of the best PI "
-                f"model's output leaves {chosen['gate']:.2g} of its error); held-out RMSE "
+                f"Chosen by --model auto: the output saturates (a saturating function of a 16-play "
+                f"PI's output leaves {chosen['gate']:.2g} of its error); held-out RMSE "
                 f"{chosen['score']:.4g} against the best PI candidate's "
                 f"{min(m['score'] for m in report['selection']['models'] if not m['rejected']):.4g}, "
                 "every parameter determined by the record.",

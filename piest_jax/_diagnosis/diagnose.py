@@ -516,7 +516,7 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnos
     pred_f, rmse_f = evaluate(rec, sc, s["model_final"])
     checked = None
     if validation is not None:
-        check_record(validation)
+        check_record(validation, validation=True)
         checked = _validate(validation, sc, s, named)
     return Diagnosis(
         record=rec,

@@ -203,13 +203,14 @@ class Scaling:
     signed_plays: bool = False
 
 
-def check_record(rec: Record) -> None:
+def check_record(rec: Record, *, validation: bool = False) -> None:
     """Refuse records the diagnosis cannot use, with a message naming the problem.
 
-    **Arguments:** `rec`, a `Record`.
+    **Arguments:** `rec`, a `Record`; `validation`: it is only predicted (a `--validate`
+    record), so one sweep or a constant output is as good a target as any.
 
-    **Returns:** nothing; raises `DataError` for too few samples, NaN/inf, an input with no
-    excitation or a constant output.
+    **Returns:** nothing; raises `DataError` for too few samples, NaN/inf, and (unless
+    `validation`) an input with no excitation or a constant output.
     """
     src = rec.source
     if rec.n_samples < MIN_SAMPLES:
@@ -223,6 +224,8 @@ def check_record(rec: Record) -> None:
             )
     if not np.all(np.diff(rec.t) > 0):
         raise DataError(f"{src}: time stamps are not strictly increasing")
+    if validation:
+        return
     du = np.ptp(rec.u)
     if du <= 1e-9 * np.max(np.abs(rec.u)):
         raise DataError(f"{src}: no excitation: the input u is constant, nothing can be identified")
