@@ -207,13 +207,13 @@ def check_record(rec: Record, *, validation: bool = False) -> None:
     """Refuse records the diagnosis cannot use, with a message naming the problem.
 
     **Arguments:** `rec`, a `Record`; `validation`: it is only predicted (a `--validate`
-    record), so one sweep or a constant output is as good a target as any.
+    record), so a short record, one sweep or a constant output is as good a target as any.
 
-    **Returns:** nothing; raises `DataError` for too few samples, NaN/inf, and (unless
-    `validation`) an input with no excitation or a constant output.
+    **Returns:** nothing; raises `DataError` for NaN/inf, time that does not increase, and
+    (unless `validation`) too few samples, an input with no excitation or a constant output.
     """
     src = rec.source
-    if rec.n_samples < MIN_SAMPLES:
+    if rec.n_samples < MIN_SAMPLES and not validation:
         raise DataError(f"{src}: too short: {rec.n_samples} samples, the diagnosis needs {MIN_SAMPLES}")
     for name, col in (("t", rec.t), ("u", rec.u), ("y", rec.y)):
         bad = ~np.isfinite(col)

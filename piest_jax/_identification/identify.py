@@ -407,7 +407,8 @@ def identify(
       model on (it never takes part in choosing or fitting), or None.
     - `model`: `"auto"` (plain PI or PI + creep, by held-out error: [`select_model`][]; with
       `plays="auto"`, non-negative weights and unfitted initial states also a non-negative
-      Preisach model, chosen only where the record determines it: [`PreisachCandidate`][]),
+      Preisach model, chosen only where the record determines it: [`PreisachCandidate`][],
+      and, where the output saturates, a generalized PI: [`GPICandidate`][]),
       `"pi"`, `"pi+creep"`, or one of the models that saturate: `"gpi"` (a
       [`GeneralizedPI`][], [`fit_gpi`][piest_jax.fit_gpi]; needs `plays`) or `"preisach"` (a
       [`Preisach`][] grid, [`fit_preisach`][piest_jax.fit_preisach]; no `plays`, `solver`,
