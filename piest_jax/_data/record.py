@@ -74,7 +74,8 @@ class Record:
         **Arguments:** `label`, a value of the `segment` column.
 
         **Returns:** the [`Record`][] of its rows. Raises [`DataError`][] naming the labels there
-        are when no segment has this label (or the record has no segments).
+        are when no segment has this label (or the record has no segments), and when the segment
+        has fewer samples than a record needs (8).
         """
         if self.segment is None:
             _fail(self.source, f"no `{SEGMENT}` column to select segment {_label(label)} from")
