@@ -52,15 +52,17 @@ def test_bad_records_are_refused(change, match):
 
 
 def test_a_validation_record_is_only_predicted():
-    # A short record, one loop (down, then up) or a held output is a fair target for a
-    # prediction, though no record to identify on; what no prediction can use is still refused.
+    # A short record or one loop (down, then up) is a fair target for a prediction, though no
+    # record to identify on; what no prediction can use (a constant output, whose fit
+    # percentage would divide by zero) is still refused.
     rec = _sine_record()
     one_loop = Record(rec.t[:300], np.cos(np.pi * rec.t[:300] / 1.5), rec.y[:300])
     with pytest.raises(DataError, match="reverses direction only once"):
         _diagnose.check_record(one_loop)
     _diagnose.check_record(one_loop, validation=True)
     _diagnose.check_record(rec.slice(0, 50), validation=True)
-    _diagnose.check_record(Record(rec.t, rec.u, np.full(len(rec.t), 3.0)), validation=True)
+    with pytest.raises(DataError, match="constant output"):
+        _diagnose.check_record(Record(rec.t, rec.u, np.full(len(rec.t), 3.0)), validation=True)
     with pytest.raises(DataError, match="`y` has 1 NaN"):
         _diagnose.check_record(Record(rec.t, rec.u, np.where(rec.t == rec.t[4], np.nan, rec.y)), validation=True)
 

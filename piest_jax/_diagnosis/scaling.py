@@ -207,10 +207,10 @@ def check_record(rec: Record, *, validation: bool = False) -> None:
     """Refuse records the diagnosis cannot use, with a message naming the problem.
 
     **Arguments:** `rec`, a `Record`; `validation`: it is only predicted (a `--validate`
-    record), so a short record, one sweep or a constant output is as good a target as any.
+    record), so a short record or one sweep is as good a target as any.
 
-    **Returns:** nothing; raises `DataError` for NaN/inf, time that does not increase, and
-    (unless `validation`) too few samples, an input with no excitation or a constant output.
+    **Returns:** nothing; raises `DataError` for NaN/inf, time that does not increase, a
+    constant output, and (unless `validation`) too few samples or an input with no excitation.
     """
     src = rec.source
     if rec.n_samples < MIN_SAMPLES and not validation:
@@ -224,6 +224,9 @@ def check_record(rec: Record, *, validation: bool = False) -> None:
             )
     if not np.all(np.diff(rec.t) > 0):
         raise DataError(f"{src}: time stamps are not strictly increasing")
+    if np.ptp(rec.y) <= 1e-9 * np.max(np.abs(rec.y)):
+        # Nothing to model; on a validation record the fit percentage would divide by zero.
+        raise DataError(f"{src}: constant output: y does not change, there is nothing to model")
     if validation:
         return
     du = np.ptp(rec.u)
@@ -237,8 +240,6 @@ def check_record(rec: Record, *, validation: bool = False) -> None:
             f"{src}: no excitation: the input {how}, so no hysteresis loop is traced; record at "
             "least one rise and fall after the first sweep"
         )
-    if np.ptp(rec.y) <= 1e-9 * np.max(np.abs(rec.y)):
-        raise DataError(f"{src}: constant output: y does not change, there is nothing to model")
 
 
 def _reversals(un, frac=0.05):
