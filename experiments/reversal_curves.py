@@ -86,6 +86,17 @@ def write(path, rows):
     np.savetxt(path, rows, delimiter=",", header="segment,H,B", comments="", fmt=["%d", "%.7f", "%.7f"])
 
 
+def command(name, train, val, out):
+    """`piest <name>` with its defaults on the training file, validated on the other:
+    (its JSON report, seconds). A command that fails stops the study."""
+    t0 = time.time()
+    argv = [name, str(train), "--columns", "H,B", "--validate", str(val), "--out", str(out), "--quiet"]
+    if pj.run_cli(argv) != 0:
+        raise SystemExit(f"piest {name} failed on {train}")
+    report = out / ("fit.json" if name == "fit" else "report.json")
+    return json.loads(report.read_text()), time.time() - t0
+
+
 def baseline(train, val):
     """The plain 20-play least-squares PI (signed weights) fitted on the training curves joined,
     run on the validation curves joined from rest at their first input."""
@@ -103,26 +114,18 @@ def one(material, n_curves, step, noise, seed, work):
     write(va, val)
     base = baseline(train, val)
     res = {"samples": len(rows), "train_samples": len(train), "curves": n_curves, "baseline_rmse": base}
-    t0 = time.time()
-    out = work / f"{material}_fit"
-    rc = pj.run_cli(["fit", str(tr), "--columns", "H,B", "--validate", str(va), "--out", str(out), "--quiet"])
-    fit = json.loads((out / "fit.json").read_text())
+    fit, seconds = command("fit", tr, va, work / f"{material}_fit")
     res["fit"] = {
-        "rc": rc,
-        "seconds": time.time() - t0,
+        "seconds": seconds,
         "structure": fit["structure"],
         "n_plays": fit.get("n_plays"),
         "validation_rmse": fit["validation_rmse"],
         "ratio": fit["validation_rmse"] / base,
         "segments_joined": fit.get("segments_joined"),
     }
-    t0 = time.time()
-    out = work / f"{material}_diagnose"
-    rc = pj.run_cli(["diagnose", str(tr), "--columns", "H,B", "--validate", str(va), "--out", str(out), "--quiet"])
-    rep = json.loads((out / "report.json").read_text())
+    rep, seconds = command("diagnose", tr, va, work / f"{material}_diagnose")
     res["diagnose"] = {
-        "rc": rc,
-        "seconds": time.time() - t0,
+        "seconds": seconds,
         "effects": rep["effects"],
         "validation_baseline_rmse": rep["validation"]["baseline_rmse"],
         "validation_final_rmse": rep["validation"]["final_rmse"],
@@ -146,18 +149,17 @@ def shipped_loops(work):
             write(tr, train)
             write(va, val)
             entry = {"loop": float(label), "baseline_rmse": baseline(train, val)}
-            for command, key in (("fit", "validation_rmse"), ("diagnose", None)):
-                out = work / f"{name}_{label:g}_{command}"
-                t0 = time.time()
-                pj.run_cli([command, str(tr), "--columns", "H,B", "--validate", str(va), "--out", str(out), "--quiet"])
-                if command == "fit":
-                    rep = json.loads((out / "fit.json").read_text())
-                    entry["fit"] = {"structure": rep["structure"], "n_plays": rep.get("n_plays"), "rmse": rep[key]}
-                else:
-                    rep = json.loads((out / "report.json").read_text())
-                    entry["diagnose"] = {"effects": rep["effects"], "rmse": rep["validation"]["final_rmse"]}
-                entry[command]["seconds"] = time.time() - t0
-                entry[command]["ratio"] = entry[command]["rmse"] / entry["baseline_rmse"]
+            fit, seconds = command("fit", tr, va, work / f"{name}_{label:g}_fit")
+            entry["fit"] = {
+                "structure": fit["structure"],
+                "n_plays": fit.get("n_plays"),
+                "rmse": fit["validation_rmse"],
+                "seconds": seconds,
+            }
+            rep, seconds = command("diagnose", tr, va, work / f"{name}_{label:g}_diagnose")
+            entry["diagnose"] = {"effects": rep["effects"], "rmse": rep["validation"]["final_rmse"], "seconds": seconds}
+            for c in ("fit", "diagnose"):
+                entry[c]["ratio"] = entry[c]["rmse"] / entry["baseline_rmse"]
             res[f"{name} loop {label:g}"] = entry
             print(
                 f"{name} loop {label:g}: PI 20 plays {entry['baseline_rmse']:.4f}; fit {entry['fit']['structure']} "

@@ -135,6 +135,23 @@ def _band(fit, u):
     return prediction_band(fit, u).interval()
 
 
+def _chosen(report, structure) -> list[str]:
+    """fit.md's lines on why `--model auto` chose this model (none when it was asked for)."""
+    chosen = report.get("selection", {}).get(structure)
+    if chosen is None:
+        return []
+    why = ""
+    if structure == "gpi":
+        gate = f"{chosen['gate']:.2g}"
+        why = f"the output saturates (a saturating function of a 16-play PI's output leaves {gate} of its error); "
+    best_pi = min(m["score"] for m in report["selection"]["models"] if not m["rejected"])
+    return [
+        "",
+        f"Chosen by --model auto: {why}held-out RMSE {chosen['score']:.4g} against the best PI "
+        f"candidate's {best_pi:.4g}, every parameter determined by the record.",
+    ]
+
+
 def _markdown(args, report, table="") -> str:
     lines = [f"# piest fit: {args.data}", ""]
     if report["structure"] == "gpi":
@@ -155,16 +172,7 @@ def _markdown(args, report, table="") -> str:
             f"| {k + 1} | {a:.6g} | {c:.6g} | {s:.6g} |"
             for k, (a, c, s) in enumerate(zip(g["amplitudes"], g["centres"], g["scales"]))
         ]
-        chosen = report.get("selection", {}).get("gpi")
-        if chosen is not None:
-            lines += [
-                "",
-                f"Chosen by --model auto: the output saturates (a saturating function of a 16-play "
-                f"PI's output leaves {chosen['gate']:.2g} of its error); held-out RMSE "
-                f"{chosen['score']:.4g} against the best PI candidate's "
-                f"{min(m['score'] for m in report['selection']['models'] if not m['rejected']):.4g}, "
-                "every parameter determined by the record.",
-            ]
+        lines += _chosen(report, "gpi")
         if table:
             method = report["covariance"]["method"]
             lines += ["", f"Standard errors ({method}):", "", table.rstrip("\n")]
@@ -176,14 +184,7 @@ def _markdown(args, report, table="") -> str:
             "",
             "The density is in fit.json (`density`, half-widths by centres).",
         ]
-        chosen = report.get("selection", {}).get("preisach")
-        if chosen is not None:
-            lines += [
-                "",
-                f"Chosen by --model auto: held-out RMSE {chosen['score']:.4g} against the best PI "
-                f"candidate's {min(m['score'] for m in report['selection']['models'] if not m['rejected']):.4g}, "
-                "every parameter determined by the record.",
-            ]
+        lines += _chosen(report, "preisach")
         if "std_errors" in report:
             bad = report["undetermined"]
             lines += [

@@ -82,10 +82,7 @@ class Record:
         for a, b in _segment_bounds(self.segment, self.source):
             if self.segment[a] == label:
                 if b - a < MIN_SAMPLES:
-                    _fail(
-                        self.source,
-                        f"segment {_label(label)} has only {b - a} samples; at least {MIN_SAMPLES} are needed",
-                    )
+                    _too_short(self.source, b - a, MIN_SAMPLES, f"segment {_label(label)}")
                 return self.slice(a, b)
         _fail(self.source, f"no segment labelled {_label(label)}; the labels are {_labels(self.segment)}")
 
@@ -367,7 +364,7 @@ def _record(t, u, y, extras, source, rows, segment, time_is_index, **opts):
         t, u, y, extras = _validate(t, u, y, extras, source, rows, **opts)
         return Record(t, u, y, extras, source, None, time_is_index)
     if len(t) < opts["min_samples"]:
-        _validate(t, u, y, extras, source, rows, **opts)  # names the shortfall
+        _too_short(source, len(t), opts["min_samples"])
     parts = []
     bounds = _segment_bounds(segment, source, rows)
     # One step for the whole record: the median over the steps inside the segments.
@@ -397,6 +394,11 @@ def _record(t, u, y, extras, source, rows, segment, time_is_index, **opts):
     return Record(t, u, y, extras, source, seg, time_is_index)
 
 
+def _too_short(source, n, min_samples, part=None) -> NoReturn:
+    head = "only" if part is None else f"{part} has only"
+    _fail(source, f"{head} {n} sample{'s' * (n != 1)}; at least {min_samples} are needed")
+
+
 def _finite(cols, source, rows):
     for name, col in cols.items():
         bad = ~np.isfinite(col)
@@ -410,9 +412,7 @@ def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resam
     """Time and length checked (and resampled when asked); `step`, the step to hold time to
     (default: its median); `part`, the segment's name for messages."""
     if len(t) < min_samples:
-        s = "s" * (len(t) != 1)
-        head = "only" if part is None else f"{part} has only"
-        _fail(source, f"{head} {len(t)} sample{s}; at least {min_samples} are needed")
+        _too_short(source, len(t), min_samples, part)
     dt = np.diff(t)
     if np.any(dt <= 0):
         k = int(np.argmax(dt <= 0))

@@ -23,7 +23,7 @@ from scipy import optimize as _optimize
 
 from .._operators.pi import PIOperator
 from .fit_gpi import GPIFit, fit_gpi
-from .holdout import HOLDOUT, holdout_split
+from .holdout import HOLDOUT, heldout_rmse, holdout_split
 
 GATE = 0.5
 GATE_PLAYS = 16
@@ -149,7 +149,7 @@ def gpi_candidate(
             break
         held = fit_gpi(u[:S], y[:S], n, mask=split * used[:S], covariance=None, **options)
         tried.append(n)
-        scores.append(float(np.sqrt(np.mean((np.asarray(held.model(u[:S]))[test] - y[:S][test]) ** 2))))
+        scores.append(heldout_rmse(held.model, u, y, S, test))
         if scores[-1] < scores[lead] * (1 - tolerance):
             lead = len(scores) - 1
         if len(scores) - 1 - lead >= 2:

@@ -48,6 +48,11 @@ def selection_stretch(used: np.ndarray) -> int:
     return min(T, first + SELECT_SAMPLES)
 
 
+def heldout_rmse(model, u, y, S: int, test) -> float:
+    """RMSE of `model` (run on the stretch `u[:S]`) on the held-out samples `test` (S,) bool."""
+    return float(np.sqrt(np.mean((np.asarray(model(u[:S]))[test] - y[:S][test]) ** 2)))
+
+
 def holdout_split(used: np.ndarray, holdout: float):
     """The stretch the held-out search runs on and its split (see [`select_plays`][]'s notes).
 

@@ -19,7 +19,7 @@ import dataclasses
 import numpy as np
 
 from .fit_preisach import PreisachFit, fit_preisach
-from .holdout import HOLDOUT, holdout_split
+from .holdout import HOLDOUT, heldout_rmse, holdout_split
 
 GRID = (16, 16)  # half-widths x centres: the input range resolved in sixteenths, as a 16-play PI
 
@@ -69,7 +69,7 @@ def preisach_candidate(
     S, split, test = holdout_split(used, holdout)
     options = dict(n_widths=GRID[0], n_centres=GRID[1], monotone=True, initial_states=initial_states)
     held = fit_preisach(u[:S], y[:S], mask=split * used[:S], covariance=None, **options)
-    score = float(np.sqrt(np.mean((np.asarray(held.model(u[:S]))[test] - y[:S][test]) ** 2)))
+    score = heldout_rmse(held.model, u, y, S, test)
     if not score < best * (1 - tolerance):
         return PreisachCandidate(GRID, score, None, False), None
     whole = fit_preisach(u[:S], y[:S], mask=used[:S], **options)
