@@ -107,6 +107,44 @@ def test_a_drift_gives_way_to_creep_that_explains_as_much():
     assert _diagnose._prefer_input_driven(s, "creep", cur, sigma2, n) == "creep"
 
 
+def test_pairs_are_retried_when_a_significant_gap_is_left():
+    sigma2, n = 1e-4, 500
+    # 1.7x the noise in RMS (below the 2x once required): a model at the noise floor would gain
+    # about twice the noise variance, which the naming rule calls significant.
+    assert _diagnose._stuck(1.7**2 * sigma2, sigma2, n)
+    # At 1.05x, what is left is within the rule's margin: nothing to retry.
+    assert not _diagnose._stuck(1.05**2 * sigma2, sigma2, n)
+
+
+def test_the_revisit_keeps_creep_unless_a_drift_is_significantly_better(monkeypatch):
+    # The backfitting pass re-chooses each named effect among all candidates; a drift over time
+    # may take creep's place only by the rounds' own rule (a significant held-out gain), else a
+    # swap made after the round would undo the round's preference for the input-driven effect.
+    rec = _record()
+    p = prepared(rec, scaling_of(rec), folds=True)
+    sigma2, n, cur = 1e-4, 2000, 1e-2
+
+    def revisit(second, drift_mse):
+        cfg = {"saturation": (0.0, 0.0), second: EFFECT[second].grid(p)[0]}
+
+        # Each effect refitted where it is scores the current error; a drift in the second
+        # effect's place scores `drift_mse`; every other swap is worse.
+        def fit_many(p, rest, c, values):
+            if c == "offset_drift" and second not in rest:
+                return drift_mse, ()
+            return (cur, cfg[c]) if c in cfg else (2 * cur, values[0])
+
+        monkeypatch.setattr(_diagnose, "_fit_many", fit_many)
+        return _diagnose._revisit(p, dict(cfg), list(cfg), list(EFFECT), cur, sigma2, n)[1]
+
+    # Better by a tenth of the noise variance: not significant, creep stays.
+    assert revisit("creep", cur - 0.1 * sigma2) == ["saturation", "creep"]
+    # Better by ten noise variances: the drift takes the place, as it would in a round.
+    assert revisit("creep", cur - 10 * sigma2) == ["saturation", "offset_drift"]
+    # Against another record-specific effect (the unrecorded past) the lower error decides.
+    assert revisit("initial_state", cur - 0.1 * sigma2) == ["saturation", "offset_drift"]
+
+
 @pytest.mark.parametrize(
     "cfg",
     [

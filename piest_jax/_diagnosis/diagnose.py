@@ -50,9 +50,6 @@ MIN_GAIN_NOISE = 1.2
 MIN_GAIN_REL = 0.03
 PARAM_PENALTY = 2.0
 MAX_EFFECTS = 3
-# A first effect that leaves a held-out RMSE above STUCK_NOISE x the noise, with no single
-# addition significant, is retried as pairs (`_pair_restart`).
-STUCK_NOISE = 2.0
 
 
 def _fit_many(p, cfg, effect, values):
@@ -140,6 +137,13 @@ def _significant(gain, n_params, cur_mse, sigma2, n):
     return score, bool(score > MIN_GAIN_NOISE and gain > MIN_GAIN_REL * cur_mse)
 
 
+def _stuck(cur, sigma2, n):
+    """Whether a model still misses more than the naming rule lets pass: a model at the noise
+    floor would gain significantly on its held-out MSE `cur` (when no single addition does,
+    `_pair_restart` tries pairs)."""
+    return _significant(cur - sigma2, 0, cur, sigma2, n)[1]
+
+
 def _prefer_input_driven(scores, best, cur, sigma2, n):
     """A time drift that wins a round gives way to an input-driven effect that explains as much.
 
@@ -160,13 +164,15 @@ def _prefer_input_driven(scores, best, cur, sigma2, n):
     return alt
 
 
-def _revisit(p, cfg, named, candidates, cur):
+def _revisit(p, cfg, named, candidates, cur, sigma2, n):
     """Re-choose each named effect given the others (one backfitting pass).
 
     An effect named while a second one was still unmodelled may have been the best stand-in for
     the pair (a lag for a delay seen through a saturation); with the second in place, the first
     is chosen again among all candidates, its own form and parameters included, and then the
-    second given the new first.
+    second given the new first. A swap keeps the rounds' preference (`_prefer_input_driven`):
+    a drift over time replaces an input-driven effect only when it is significantly better
+    (`sigma2`, `n`: the noise variance and effective sample size that judge it).
     """
     for sweep in range(4):
         before = cur
@@ -179,7 +185,10 @@ def _revisit(p, cfg, named, candidates, cur):
                 if c in rest:
                     continue
                 mse, q = _fit_many(p, rest, c, EFFECT[c].grid(p))
-                if mse < best[0]:
+                drift_for_input = EFFECT[c].time_driven and not EFFECT[best[1]].record_specific
+                if mse < best[0] and not (
+                    drift_for_input and not _significant(best[0] - mse, 0, best[0], sigma2, n)[1]
+                ):
                     best = (mse, c, q)
             named = [best[1] if x == e else x for x in named]
             cfg, cur = {**rest, best[1]: best[2]}, best[0]
@@ -192,16 +201,18 @@ def _pair_restart(p, first, cur, sigma2, n):
     """Pairs of the first round's three best candidates, each fitted from the plain model.
 
     One effect chosen first can absorb two (a resonant lag standing in for a delay seen
-    through an output nonlinearity) and leave a residual far above the noise that no single
-    addition reduces. The pair that explains the record best replaces it if it is better by a
-    significant margin; otherwise None.
+    through an output nonlinearity; a saturation whose off-centre envelope stands in for an
+    asymmetry) and leave a residual that a model at the noise floor would improve on by the
+    naming rule's margin, which no single addition does: the second effect only helps once the
+    first is fitted again beside it. The pair that explains the record best replaces it if it is
+    better by a significant margin; otherwise None.
     """
     top = sorted(first, key=lambda k: -first[k]["score"])[:3]
     best = None
     for a, b in itertools.combinations(top, 2):
         cfg = {a: first[a]["value"]}
         mse, q = _fit_many(p, cfg, b, EFFECT[b].grid(p))
-        cfg, named, mse = _revisit(p, {**cfg, b: q}, [a, b], [a, b], mse)
+        cfg, named, mse = _revisit(p, {**cfg, b: q}, [a, b], [a, b], mse, sigma2, n)
         if best is None or mse < best[2]:
             best = (cfg, named, mse)
     gain_ok = best is not None and _significant(cur - best[2], 0, cur, sigma2, n)[1]
@@ -314,7 +325,7 @@ def search(
             if untried:
                 rounds[0]["untried"] = untried
         if not ok:
-            if len(named) == 1 and cur > STUCK_NOISE**2 * sigma2 and max_effects > 1 and not restarted:
+            if len(named) == 1 and _stuck(cur, sigma2, n) and max_effects > 1 and not restarted:
                 restarted = True
                 alt = _pair_restart(p, first, cur, sigma2, n)
                 if alt is not None:
@@ -326,7 +337,7 @@ def search(
         cfg = {**cfg, best: scores[best]["value"]}
         cur = scores[best]["mse"]
         if len(named) > 1:
-            cfg, named, cur = _revisit(p, cfg, named, candidates, cur)
+            cfg, named, cur = _revisit(p, cfg, named, candidates, cur, sigma2, n)
             rounds[-1]["effects_after_revisit"] = list(named)
     sigma2, n = _noise(p, cfg, floor, step_noise)
     cfg, named, pruned = _prune(p, cfg, named, sigma2, n)
