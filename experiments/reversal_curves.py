@@ -12,6 +12,7 @@ measurement does. The files carry the segment column, so the commands take the c
 another (`docs/data.md`).
 
     python experiments/reversal_curves.py            # ~10 min on 2 cores
+    python experiments/reversal_curves.py --loops-only   # the shipped B-H loops alone, ~3 min
 """
 
 import argparse
@@ -177,10 +178,19 @@ def main_():
     ap.add_argument("--noise", type=float, default=0.002)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(RESULTS / "reversal_curves.json"))
+    ap.add_argument(
+        "--loops-only",
+        action="store_true",
+        help="rerun only the shipped B-H loops, keeping the reversal curves' results already in --out",
+    )
     args = ap.parse_args()
+    loops_only = args.loops_only
+    del args.loops_only
     res = {"settings": vars(args).copy(), "materials": {}}
+    if loops_only:
+        res = json.loads(Path(args.out).read_text())
     with tempfile.TemporaryDirectory() as tmp:
-        for i, name in enumerate(MATERIALS):
+        for i, name in enumerate([] if loops_only else MATERIALS):
             r = one(name, args.curves, args.step, args.noise, args.seed + i, Path(tmp))
             res["materials"][name] = r
             print(
@@ -192,7 +202,8 @@ def main_():
                 flush=True,
             )
         res["shipped_bh_loops"] = shipped_loops(Path(tmp))
-    res["settings"]["out"] = os.path.relpath(res["settings"]["out"], ROOT)
+    if not loops_only:
+        res["settings"]["out"] = os.path.relpath(res["settings"]["out"], ROOT)
     Path(args.out).write_text(json.dumps(res, indent=1))
 
 
