@@ -185,11 +185,12 @@ def _revisit(p, cfg, named, candidates, cur, sigma2, n):
                 if c in rest:
                     continue
                 mse, q = _fit_many(p, rest, c, EFFECT[c].grid(p))
-                drift_for_input = EFFECT[c].time_driven and not EFFECT[best[1]].record_specific
-                if mse < best[0] and not (
-                    drift_for_input and not _significant(best[0] - mse, 0, best[0], sigma2, n)[1]
-                ):
-                    best = (mse, c, q)
+                if mse >= best[0]:
+                    continue
+                if EFFECT[c].time_driven and not EFFECT[best[1]].record_specific:
+                    if not _significant(best[0] - mse, 0, best[0], sigma2, n)[1]:
+                        continue
+                best = (mse, c, q)
             named = [best[1] if x == e else x for x in named]
             cfg, cur = {**rest, best[1]: best[2]}, best[0]
         if sweep > 0 and cur > 0.99 * before:

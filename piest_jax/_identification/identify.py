@@ -529,10 +529,9 @@ def _choose_and_fit(record, p: Plan, *, model, plays, criterion, quiet, **fit_op
         and not fit_options["fit_initial_states"]
     ):
         best = dict(zip(choice.candidates, choice.scores))[(choice.n_plays, choice.n_lags)]
-        candidate, fit = preisach_candidate(
+        candidate, preisach_fit = preisach_candidate(
             np.asarray(u), np.asarray(y), p.mask, best, initial_states=fit_options["initial_states"]
         )
-        choice = dataclasses.replace(choice, preisach=candidate, fit=choice.fit if fit is None else fit)
         # And a generalized PI where the output saturates (`gpi_candidate.py`), against the
         # best model so far.
         gpi, gpi_fit = gpi_candidate(
@@ -547,9 +546,8 @@ def _choose_and_fit(record, p: Plan, *, model, plays, criterion, quiet, **fit_op
         )
         if gpi_fit is not None:
             candidate = dataclasses.replace(candidate, chosen=False)
-        choice = dataclasses.replace(
-            choice, preisach=candidate, gpi=gpi, fit=choice.fit if gpi_fit is None else gpi_fit
-        )
+        chosen = next(f for f in (gpi_fit, preisach_fit, choice.fit) if f is not None)
+        choice = dataclasses.replace(choice, preisach=candidate, gpi=gpi, fit=chosen)
     return choice.fit, choice
 
 
