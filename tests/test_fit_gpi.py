@@ -59,6 +59,43 @@ def test_one_term_and_fitted_initial_states():
     assert f.model.n_terms == 1
 
 
+@pytest.mark.parametrize(
+    "options",
+    [{}, {"max_threshold": 4.0, "fit_initial_states": True, "n_terms": 1}],
+    ids=["plain", "bounded_initial_states"],
+)
+def test_padded_fit_equals_unpadded(options):
+    # Inactive plays added to share a compilation change nothing but rounding, for a fit stopped
+    # by max_steps (the same steps) and for one that converges (either may stop a step earlier
+    # when rounding crosses the solver's rtol, 1e-6, so they agree to that).
+    u = record(300)
+    y = np.asarray(truth(u[0])(u)) + 0.01 * np.random.default_rng(5).normal(size=u.size)
+    for n, steps in ((2, 100), (2, 4)):
+        a = pj.fit_gpi(u, y, n, key=jax.random.key(1), max_steps=steps, **options)
+        b = pj.fit_gpi(u, y, n, key=jax.random.key(1), max_steps=steps, pad_plays=5, **options)
+        assert b.model.pi.thresholds.shape == b.model.pi.weights.shape == (n,)
+        assert a.result_name == b.result_name
+        tol = 1e-7 if steps == 4 else 1e-5
+        if steps == 4:
+            assert int(a.n_steps) == int(b.n_steps) == 4
+        ma, mb = a.model, b.model
+        # The r = 0 play forgets its initial state at the first sample, so only the others count.
+        for x, z in (
+            (mb.pi.thresholds, ma.pi.thresholds),
+            (mb.pi.weights, ma.pi.weights),
+            (mb.pi.initial_states[1:], ma.pi.initial_states[1:]),
+            (mb.amplitudes, ma.amplitudes),
+            (mb.centres, ma.centres),
+            (mb.scales, ma.scales),
+            (mb.offset, ma.offset),
+            (mb(u), ma(u)),
+        ):
+            np.testing.assert_allclose(np.asarray(x), np.asarray(z), rtol=tol, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(b.start_rmse), np.asarray(a.start_rmse), rtol=tol, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(b.std_errors), np.asarray(a.std_errors), rtol=1e-4, atol=1e-12)
+        assert b.parameter_names == a.parameter_names
+
+
 def test_bad_arguments_are_refused():
     u = record(100)
     with pytest.raises(ValueError, match="`n_terms` must be a positive whole number"):
@@ -69,3 +106,5 @@ def test_bad_arguments_are_refused():
         pj.fit_gpi(u[:40], u[:40], 20, n_terms=2)
     with pytest.raises(ValueError, match="unknown solver"):
         pj.fit_gpi(u, u, 2, solver="newton")
+    with pytest.raises(ValueError, match="`pad_plays` must be a whole number of at least n_plays=3"):
+        pj.fit_gpi(u, u, 3, pad_plays=2)

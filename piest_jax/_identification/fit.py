@@ -252,21 +252,46 @@ def run(u, r, w, offset, x0, log_tau=None, c=None, z0=None, *, final=False):
     return (y + offset, states) if final else y + offset
 
 
+def padded_starts(r0s, x0, n_plays: int, pad_plays: int | None):
+    """Starting thresholds (starts, n) and play states (n,) padded to `pad_plays` plays, and
+    the (pad_plays,) mask of the active ones (None without padding).
+
+    The padding repeats the top start threshold and state; those plays are inactive anyway
+    (`_constrained` gives them no increment and no weight, `play_residuals` holds them).
+    """
+    if pad_plays is None:
+        return r0s, x0, None
+    if not isinstance(pad_plays, (int, np.integer)) or pad_plays < n_plays:
+        raise ValueError(f"`pad_plays` must be a whole number of at least n_plays={n_plays}, got {pad_plays!r}")
+    # Even with no padding the mask is made, so that every padded fit has one structure.
+    extra = int(pad_plays) - n_plays
+    r0s = jnp.concatenate([r0s, jnp.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
+    x0 = jnp.concatenate([x0, jnp.repeat(x0[-1:], extra)])
+    return r0s, x0, (jnp.arange(int(pad_plays)) < n_plays).astype(r0s.dtype)
+
+
+def padding_residuals(params, x0, active) -> list:
+    """One residual per inactive (padding) play parameter, zero where it starts.
+
+    Inactive parameters do not reach the data residuals; these keep the Jacobian's columns
+    independent (Gauss-Newton needs that) and leave the parameters where they are.
+    """
+    if active is None:
+        return []
+    off = 1.0 - active
+    extra = [off[1:] * params["increments"], off * params["weights"]]
+    if "initial_states" in params:
+        extra.append(off * (params["initial_states"] - x0))
+    return extra
+
+
 def _residuals(params, args):
     """Masked residuals scaled so that their sum of squares is the mean squared error."""
     u, y, x0, mask, positive_weights, r_bound, active, z0, lag_active, lag_base = args
     count = jnp.maximum(jnp.sum(mask), 1.0)
     pred = _predict(params, u, x0, positive_weights, r_bound, active, z0, lag_active, lag_base)
     res = mask * (pred - y) / jnp.sqrt(count)
-    extra = []
-    # Inactive (padding) parameters do not reach the data residuals; one residual each, zero
-    # where they start, keeps the Jacobian's columns independent (Gauss-Newton needs that) and
-    # leaves them where they are.
-    if active is not None:
-        off = 1.0 - active
-        extra += [off[1:] * params["increments"], off * params["weights"]]
-        if "initial_states" in params:
-            extra.append(off * (params["initial_states"] - x0))
+    extra = padding_residuals(params, x0, active)
     if lag_active is not None:
         off = 1.0 - lag_active
         extra += [off * params["lag_theta"], off * params["lag_weights"]]
@@ -560,19 +585,9 @@ def fit_pi(
         r0s = _start_grids(n_plays, n_starts, un.dtype, key)
     else:
         r0s = r_start[None, :]
-    active = None
-    if pad_plays is not None:
-        if not isinstance(pad_plays, (int, np.integer)) or pad_plays < n_plays:
-            raise ValueError(f"`pad_plays` must be a whole number of at least n_plays={n_plays}, got {pad_plays!r}")
-        if r_start is not None:
-            raise ValueError("`pad_plays` and `thresholds0` cannot be combined")
-    if pad_plays is not None:
-        # Even with no padding the mask is made, so that every padded fit has one structure.
-        extra = int(pad_plays) - n_plays
-        # The padding repeats the top start threshold and state; the plays are inactive anyway.
-        r0s = jnp.concatenate([r0s, jnp.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
-        x0 = jnp.concatenate([x0, jnp.repeat(x0[-1:], extra)])
-        active = (jnp.arange(int(pad_plays)) < n_plays).astype(un.dtype)
+    if pad_plays is not None and r_start is not None:
+        raise ValueError("`pad_plays` and `thresholds0` cannot be combined")
+    r0s, x0, active = padded_starts(r0s, x0, n_plays, pad_plays)
     z0 = log_tau0s = lag_active = lag_base = None
     k_all = n_lags if pad_lags is None else int(pad_lags)
     if k_all > 0:

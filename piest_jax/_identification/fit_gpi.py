@@ -41,6 +41,8 @@ from .fit import (
     _softplus_inv,
     _start_grids,
     default_starts_at_once,
+    padded_starts,
+    padding_residuals,
     run,
 )
 from .fit_data import prepare
@@ -96,8 +98,8 @@ class GPIFit(Uncertainty):
         return m(u)
 
 
-def _unpack(params, r_bound):
-    r, w = _constrained(params, True, r_bound)
+def _unpack(params, r_bound, active=None):
+    r, w = _constrained(params, True, r_bound, active)
     # s_1 = 1; with one term there is no other scale (and no empty parameter array).
     log_s = jnp.zeros(1, params["centres"].dtype)
     if "log_scales" in params:
@@ -105,25 +107,29 @@ def _unpack(params, r_bound):
     return r, w, params["log_amplitudes"], params["centres"], log_s
 
 
-def _predict(params, u, x0, r_bound):
-    r, w, log_a, c, log_s = _unpack(params, r_bound)
+def _predict(params, u, x0, r_bound, active=None):
+    r, w, log_a, c, log_s = _unpack(params, r_bound, active)
     v = run(u, r, w, 0.0, params.get("initial_states", x0))
     return output_function(v, log_a, c, log_s, params["offset"])
 
 
 def _residuals(params, args):
-    u, y, x0, mask, r_bound = args
+    u, y, x0, mask, r_bound, active = args
     count = jnp.maximum(jnp.sum(mask), 1.0)
-    return mask * (_predict(params, u, x0, r_bound) - y) / jnp.sqrt(count)
+    res = mask * (_predict(params, u, x0, r_bound, active) - y) / jnp.sqrt(count)
+    extra = padding_residuals(params, x0, active)
+    return jnp.concatenate([res, *extra]) if extra else res
 
 
-def _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states):
-    p = _initial_params(r0, u, y, x0, mask, True, fit_initial_states, r_bound)
+def _start(r0, u, y, x0, mask, r_bound, active, n_terms, fit_initial_states):
+    p = _initial_params(r0, u, y, x0, mask, True, fit_initial_states, r_bound, active)
     dtype = u.dtype
     log_a = jnp.full(n_terms, jnp.log(START_AMPLITUDE / n_terms), dtype)
     c = 0.5 * jnp.linspace(-1.0, 1.0, n_terms, dtype=dtype) if n_terms > 1 else jnp.zeros(1, dtype)
     slope = jnp.sum(jnp.exp(log_a) / jnp.cosh(c) ** 2)  # g'(0) with unit scales
-    p["weights"] = _softplus_inv(jax.nn.softplus(p["weights"]) / slope)
+    w = _softplus_inv(jax.nn.softplus(p["weights"]) / slope)
+    # Padding plays' weights stay at zero, where their own residuals vanish.
+    p["weights"] = w if active is None else w * active
     p["log_amplitudes"] = log_a
     p["centres"] = c
     if n_terms > 1:
@@ -132,11 +138,13 @@ def _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states):
 
 
 @eqx.filter_jit
-def _solve_starts(r0s, u, y, x0, mask, r_bound, *, n_terms, fit_initial_states, solver, max_steps, rtol, atol, batch):
-    args = (u, y, x0, mask, r_bound)
+def _solve_starts(
+    r0s, u, y, x0, mask, r_bound, active, *, n_terms, fit_initial_states, solver, max_steps, rtol, atol, batch
+):
+    args = (u, y, x0, mask, r_bound, active)
 
     def one(r0):
-        p0 = _start(r0, u, y, x0, mask, r_bound, n_terms, fit_initial_states)
+        p0 = _start(r0, u, y, x0, mask, r_bound, active, n_terms, fit_initial_states)
         sol: optx.Solution = optx.least_squares(
             _residuals, least_squares_solver(solver, rtol, atol), p0, args=args, max_steps=max_steps, throw=False
         )
@@ -164,6 +172,7 @@ def fit_gpi(
     rtol: float = 1e-6,
     atol: float = 1e-9,
     starts_at_once: int | None = None,
+    pad_plays: int | None = None,
     covariance: str | None = "newey-west",
 ) -> GPIFit:
     """Fit a generalized PI model y = g(P[u]) (thresholds, positive weights, the output
@@ -187,6 +196,9 @@ def fit_gpi(
     - `max_steps`, `rtol`, `atol`: the solver's budget and tolerances (normalised units).
     - `starts_at_once`: starts solved together under `vmap` (memory grows with it times T);
       default as for [`fit_pi`][].
+    - `pad_plays`: solve with arrays for this many plays (at least `n_plays`), the extra ones
+      inactive, so that fits with different `n_plays` share one compilation, as for
+      [`fit_pi`][]: the same fit up to rounding, at the cost of `pad_plays` plays' work per step.
     - `covariance`: `"newey-west"` (default), `"gauss-newton"` or None, as for [`fit_pi`][]
       (`gpi_covariance.py` names the parameters and their scales).
 
@@ -214,7 +226,7 @@ def fit_gpi(
         if not float(max_threshold) > 0:
             raise ValueError(f"`max_threshold` must be positive, got {max_threshold}")
         r_bound = jnp.asarray(float(max_threshold), un.dtype) / s.u_half
-    r0s = _start_grids(n_plays, n_starts, un.dtype, key)
+    r0s, x0, active = padded_starts(_start_grids(n_plays, n_starts, un.dtype, key), x0, n_plays, pad_plays)
     batch = default_starts_at_once(un.shape[0]) if starts_at_once is None else int(starts_at_once)
     params, loss, results, steps = _solve_starts(
         r0s,
@@ -223,6 +235,7 @@ def fit_gpi(
         x0,
         mask,
         r_bound,
+        active,
         n_terms=n_terms,
         fit_initial_states=fit_initial_states,
         solver=solver,
@@ -235,9 +248,9 @@ def fit_gpi(
     if not bool(jnp.isfinite(loss[best])):
         raise ValueError("every start of the fit produced non-finite residuals")
     p = jax.tree.map(lambda a: a[best], params)
-    r, w, log_a, c, log_s = _unpack(p, r_bound)
-    w = w / s.u_half
-    pi = PIOperator(r * s.u_half, w, s.u_mid + s.u_half * p.get("initial_states", x0))
+    r, w, log_a, c, log_s = _unpack(p, r_bound, active)
+    r, w, x = r[:n_plays], w[:n_plays] / s.u_half, p.get("initial_states", x0)[:n_plays]
+    pi = PIOperator(r * s.u_half, w, s.u_mid + s.u_half * x)
     model = GeneralizedPI(
         pi, s.y_half * jnp.exp(log_a), c + s.u_mid * jnp.sum(w), jnp.exp(log_s), s.y_mid + s.y_half * p["offset"]
     )

@@ -13,7 +13,10 @@ scored on the held-out block, stopping after two in a row that do not improve th
 tolerance. The best is fitted on the whole stretch; a fit with an undetermined parameter gives
 way to the next best count, and the candidate is chosen only when a determined fit beats the
 best model so far (PI, or a chosen Preisach model) by the tolerance. The output
-function is monotone and the weights positive, so the chosen model can be inverted.
+function is monotone and the weights positive, so the chosen model can be inverted. On
+stretches of up to `holdout.SHARED_UP_TO` samples, where compiling dominates, every count is
+solved padded to the largest (`fit_gpi`'s `pad_plays`) so that all share one compilation, as the
+PI candidates are.
 """
 
 import dataclasses
@@ -23,7 +26,7 @@ from scipy import optimize as _optimize
 
 from .._operators.pi import PIOperator
 from .fit_gpi import GPIFit, fit_gpi
-from .holdout import HOLDOUT, heldout_rmse, holdout_split
+from .holdout import HOLDOUT, heldout_rmse, holdout_split, padded_plays
 
 GATE = 0.5
 GATE_PLAYS = 16
@@ -144,10 +147,10 @@ def gpi_candidate(
     tried: list[int] = []
     scores: list[float] = []
     lead = 0
-    for n in PLAYS:
-        if 2 * n + 7 > split.sum():
-            break
-        held = fit_gpi(u[:S], y[:S], n, mask=split * used[:S], covariance=None, **options)
+    counts = [n for n in PLAYS if 2 * n + 7 <= split.sum()]
+    for n in counts:
+        pad = padded_plays(n, counts[-1], S)
+        held = fit_gpi(u[:S], y[:S], n, mask=split * used[:S], covariance=None, pad_plays=pad, **options)
         tried.append(n)
         scores.append(heldout_rmse(held.model, u, y, S, test))
         if scores[-1] < scores[lead] * (1 - tolerance):
@@ -158,9 +161,9 @@ def gpi_candidate(
     # The smallest count within `tolerance` of the best first, then the others by score.
     for i in sorted(range(len(tried)), key=lambda i: (i != lead, scores[i])):
         if not scores[i] < best * (1 - tolerance):
-            break
+            continue  # the lead can miss the bar where a count that scores a little better does not
         n = tried[i]
-        whole = fit_gpi(u[:S], y[:S], n, mask=used[:S], **options)
+        whole = fit_gpi(u[:S], y[:S], n, mask=used[:S], pad_plays=padded_plays(n, counts[-1], S), **options)
         assert whole.undetermined is not None  # fitted with its covariance
         undetermined[n] = int(np.sum(np.asarray(whole.undetermined)))
         if undetermined[n] == 0:
