@@ -257,7 +257,15 @@ def fit_gpi(
     fields = {}
     if covariance is not None:
         T = jnp.shape(u)[0]
-        fields = gpi_covariance.fields(covariance, model, u, y, np.asarray(mask)[:T], fit_initial_states)
+        fields = gpi_covariance.fields(
+            covariance,
+            model,
+            u,
+            y,
+            np.asarray(mask)[:T],
+            fit_initial_states,
+            None if pad_plays is None else int(pad_plays),
+        )
     return GPIFit(
         model=model,
         rmse=jnp.sqrt(loss[best]) * s.y_half,

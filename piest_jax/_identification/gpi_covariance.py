@@ -75,21 +75,43 @@ def jacobian(theta, u, x0, n: int, k: int, states: bool):
     return f(theta), jax.jacfwd(f)(theta)
 
 
-def fields(method: str, model: GeneralizedPI, u, y, mask, states: bool) -> dict:
+def _padded(model: GeneralizedPI, pad_plays: int) -> GeneralizedPI:
+    """`model` with plays added at its top threshold, weight 0: the same output, and the same
+    derivatives with respect to the parameters it shares with `model`."""
+    extra = pad_plays - model.n_plays
+    r, w, x0 = (np.asarray(a) for a in (model.pi.thresholds, model.pi.weights, model.pi.initial_states))
+    # In NumPy (eager JAX would compile for every play count), and set directly: the operator's
+    # constructor refuses thresholds that repeat.
+    parts = tuple(
+        jnp.asarray(np.concatenate([a, np.full(extra, fill, a.dtype)]))
+        for a, fill in ((r, r[-1]), (w, 0.0), (x0, x0[-1]))
+    )
+    return eqx.tree_at(lambda m: (m.pi.thresholds, m.pi.weights, m.pi.initial_states), model, parts)
+
+
+def fields(method: str, model: GeneralizedPI, u, y, mask, states: bool, pad_plays: int | None = None) -> dict:
     """The covariance fields of a `GPIFit` (as [`PIFit`][]'s) for `model` fitted to `u`, `y`
-    (T,) with sample weights `mask` (T,)."""
+    (T,) with sample weights `mask` (T,). With `pad_plays`, J is taken on the model padded to
+    that many plays (`_padded`) and the padding's columns dropped, so that models with different
+    play counts share one compilation."""
     n, k = model.n_plays, model.n_terms
     dtype = model.pi.weights.dtype
     u, y = jnp.asarray(u, dtype), np.asarray(y, np.float64)
     theta = flatten(model, states)
-    x0 = jnp.broadcast_to(model.pi.initial_states, (n,)).astype(dtype)
-    pred, J = jacobian(theta, u, x0, n, k, states)
+    parameter_names = names(n, k, states)
+    N = n if pad_plays is None else pad_plays
+    padded = model if N == n else _padded(model, N)
+    x0 = jnp.broadcast_to(padded.pi.initial_states, (N,)).astype(dtype)
+    pred, J = jacobian(flatten(padded, states), u, x0, N, k, states)
+    J = np.asarray(J)
+    if N != n:
+        at = {name: i for i, name in enumerate(names(N, k, states))}
+        J = J[:, [at[name] for name in parameter_names]]
     m = np.asarray(mask, np.float64)
     used = m > 0
-    Ju = np.asarray(J)[used] * m[used, None]
+    Ju = J[used] * m[used, None]
     e = (y - np.asarray(pred))[used] * m[used]
     cov, se, deficient, info = _cov.estimate(Ju, e, method=method, eps=np.finfo(np.asarray(u).dtype).eps)
-    parameter_names = names(n, k, states)
     values = np.asarray(theta)
     u_np = np.asarray(u)[used]
     u_half, y_half = 0.5 * float(np.ptp(u_np)), 0.5 * float(np.ptp(y[used]))
