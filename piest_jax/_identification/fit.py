@@ -257,7 +257,7 @@ def padded_starts(r0s, x0, n_plays: int, pad_plays: int | None):
     the (pad_plays,) mask of the active ones (None without padding).
 
     The padding repeats the top start threshold and state; those plays are inactive anyway
-    (`_constrained` gives them no increment and no weight, `play_residuals` holds them).
+    (`_constrained` gives them no increment and no weight, `padding_residuals` holds them).
     """
     if pad_plays is None:
         return r0s, x0, None
