@@ -114,3 +114,35 @@ def test_cli_fit_auto_on_shipped_bh_loops_chooses_and_compensate_inverts_it(tmp_
     capsys.readouterr()
     got = np.loadtxt(comp / "compensate.csv", delimiter=",", skiprows=1)
     assert np.max(np.abs(got[:, 2] - loop.u)) < 1e-3 * np.ptp(loop.u)
+
+
+def test_the_counts_are_tried_by_score_when_the_lead_misses_the_bar(monkeypatch):
+    # Held-out scores by count, scripted: 2 leads (3 is within 1 % of it, so not a new lead) and
+    # 4, 6 gain nothing. The best model so far scores 1.005, so the bar is 0.995: the lead (1.0)
+    # misses it, 3 (0.992) passes and is fitted on the whole stretch; 4 and 6 would not pass.
+    from piest_jax._identification import gpi_candidate as _gc
+
+    scores = {2: 1.0, 3: 0.992, 4: 1.1, 6: 1.2, 8: 1.3}
+    whole: list[int] = []
+
+    class Fake:
+        def __init__(self, n, covariance):
+            self.model, self.n_plays = n, n
+            self.undetermined = None if covariance is None else np.zeros(3, bool)
+
+    def fake_fit(u, y, n, *, mask, covariance="newey-west", **options):
+        if covariance is not None:
+            whole.append(n)
+        return Fake(n, covariance)
+
+    monkeypatch.setattr(_gc, "saturation_gate", lambda *a: 0.3)
+    monkeypatch.setattr(_gc, "fit_gpi", fake_fit)
+    monkeypatch.setattr(_gc, "heldout_rmse", lambda model, u, y, S, test: scores[model])
+    u = sweep()
+    cand, fit = _gc.gpi_candidate(u, u, None, 1.005)
+    assert cand.plays == (2, 3, 4) and cand.chosen and cand.n_plays == 3 and fit.n_plays == 3
+    assert whole[0] == 3 and 2 not in whole  # the lead was never fitted whole: it missed the bar
+    # With a best model the lead beats, the lead is the one fitted and chosen.
+    whole.clear()
+    cand, _ = _gc.gpi_candidate(u, u, None, 1.02)
+    assert cand.n_plays == 2 and whole[0] == 2
