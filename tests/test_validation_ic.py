@@ -145,6 +145,32 @@ def test_the_revisit_keeps_creep_unless_a_drift_is_significantly_better(monkeypa
     assert revisit("initial_state", cur - 0.1 * sigma2) == ["saturation", "offset_drift"]
 
 
+def test_pruning_chooses_the_others_again_before_it_judges_an_effect(monkeypatch):
+    # Creep named first stood in for the record's dynamics, and the lag named beside it settled
+    # on a first-order compromise; without creep, the lag at its own best form (second order)
+    # fits as well, so creep is redundant. Judged with the lag kept at its compromise it is not.
+    rec = _record()
+    p = prepared(rec, scaling_of(rec), folds=True)
+    sigma2, n, cur = 1e-4, 2000, 1e-2
+    first, second = EFFECT["linear_dynamics"].grid(p)[:2]
+    cfg = {"creep": EFFECT["creep"].grid(p)[0], "linear_dynamics": first}
+
+    def cv(p, c):
+        if "creep" in c:
+            return cur
+        # Without creep: the compromise leaves ten noise variances, the lag's best form nothing.
+        return cur + (10 * sigma2 if c.get("linear_dynamics") == first else 0.0)
+
+    def fit_many(p, rest, c, values):
+        assert c == "linear_dynamics" and "creep" not in rest
+        return cur, second
+
+    monkeypatch.setattr(_diagnose, "_cv", cv)
+    monkeypatch.setattr(_diagnose, "_fit_many", fit_many)
+    out, named, pruned = _diagnose._prune(p, dict(cfg), ["creep", "linear_dynamics"], sigma2, n)
+    assert named == ["linear_dynamics"] and pruned == ["creep"] and out == {"linear_dynamics": second}
+
+
 @pytest.mark.parametrize(
     "cfg",
     [

@@ -221,19 +221,24 @@ def _pair_restart(p, first, cur, sigma2, n):
 
 
 def _prune(p, cfg, named, sigma2, n):
-    """Drop a named effect that a later one made redundant (backward elimination).
+    """Drop a named effect that the others make redundant (backward elimination).
 
-    A lag can stand in for a delay, slow creep for a drift: when the model without the earlier
-    effect is as good on held-out blocks, that effect is dropped.
+    A lag can stand in for a delay, slow creep for a drift or for dynamics: when the model
+    without an effect is as good on held-out blocks, that effect is dropped. The others' own
+    parameters are chosen again without it first (`_revisit` over them alone): an effect named
+    early, beside which a later one settled on a compromise (a first-order lag next to creep
+    where the record's dynamics are of second order), is redundant only once the later one
+    takes its own best form.
     """
     pruned = []
     while len(named) > 1:
         cur = _cv(p, cfg)
         for e in named:
+            others = [x for x in named if x != e]
             rest = {k: v for k, v in cfg.items() if k != e}
-            loss = _cv(p, rest) - cur
-            if not _significant(loss, EFFECT[e].n_params, cur, sigma2, n)[1]:
-                cfg, named = rest, [x for x in named if x != e]
+            rest, others, mse = _revisit(p, rest, others, others, _cv(p, rest), sigma2, n)
+            if not _significant(mse - cur, EFFECT[e].n_params, cur, sigma2, n)[1]:
+                cfg, named = rest, others
                 pruned.append(e)
                 break
         else:
