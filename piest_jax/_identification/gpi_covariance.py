@@ -102,7 +102,7 @@ def fields(method: str, model: GeneralizedPI, u, y, mask, states: bool, pad_play
     N = n if pad_plays is None else pad_plays
     padded = model if N == n else _padded(model, N)
     x0 = jnp.broadcast_to(padded.pi.initial_states, (N,)).astype(dtype)
-    pred, J = jacobian(flatten(padded, states), u, x0, N, k, states)
+    pred, J = jacobian(theta if N == n else flatten(padded, states), u, x0, N, k, states)
     J = np.asarray(J)
     if N != n:
         at = {name: i for i, name in enumerate(names(N, k, states))}
