@@ -346,7 +346,7 @@ def test_grids_and_refinements_are_physical():
     assert all(n[1] > 0 and 0 < n[2] <= 1.5 for n in EFFECT["linear_dynamics"].neighbours(q, 0))
 
 
-@pytest.mark.parametrize("form", ["linear", "two_bands", "four_bands"])
+@pytest.mark.parametrize("form", ["linear", "two_bands", "four_bands", "eight_bands"])
 def test_noncongruence_terms_are_a_preisach_density_that_depends_on_the_centre(form):
     # Relays of half-width r centred on a fine grid of s, weighted by a density f(s) and switched
     # by the input: those centred below the play's output x_r are up, so their weighted sum is
@@ -370,7 +370,7 @@ def test_noncongruence_terms_are_a_preisach_density_that_depends_on_the_centre(f
         G = lambda x: x + a[0] * x**2 / 2  # noqa: E731
         coef = a / 2
     else:
-        a = np.array([0.5, -0.3, 0.4])[: len(edges)]
+        a = np.array([0.5, -0.3, 0.4, -0.2, 0.3, -0.4, 0.25])[: len(edges)]
         f = 1 + sum(ak * (s > sk) for ak, sk in zip(a, edges))
         G = lambda x: x + sum(ak * np.maximum(x - sk, 0) for ak, sk in zip(a, edges))  # noqa: E731
         coef = a
@@ -389,6 +389,20 @@ def test_noncongruence_terms_are_a_preisach_density_that_depends_on_the_centre(f
         np.testing.assert_allclose(total, expect, atol=2 * np.abs(f).max() * ds)
         moved = max(moved, float(np.ptp(terms)))
     assert moved > 0.05  # the centre dependence shows: the check is not vacuous
+
+
+def test_eight_bands_are_tried_where_the_search_has_forty_samples_per_coefficient():
+    from piest_jax._diagnosis.effects import minor_loop_noncongruence as _mlnc
+
+    e = EFFECT["minor_loop_noncongruence"]
+    need = _mlnc.SAMPLES_PER_TERM * e.n_play_terms("eight_bands")
+    assert e.n_play_terms("eight_bands") == 7 * len(_mlnc.PLAYS)
+    assert "eight_bands" not in e.grid(_record(n=need - 1))
+    assert e.grid(_record(n=need)) == list(_mlnc.FORMS)
+    # The coarse forms are charged alike, so held-out error alone chooses among them; the eight
+    # bands pay for their own coefficients.
+    assert {e.charge(f) for f in ("linear", "two_bands", "four_bands")} == {e.n_play_terms("four_bands")}
+    assert e.charge("eight_bands") == e.n_play_terms("eight_bands")
 
 
 def test_reversal_spread_sees_loops_at_several_heights():

@@ -237,7 +237,7 @@ def _prune(p, cfg, named, sigma2, n):
             others = [x for x in named if x != e]
             rest = {k: v for k, v in cfg.items() if k != e}
             rest, others, mse = _revisit(p, rest, others, others, _cv(p, rest), sigma2, n)
-            if not _significant(mse - cur, EFFECT[e].n_params, cur, sigma2, n)[1]:
+            if not _significant(mse - cur, EFFECT[e].charge(cfg[e]), cur, sigma2, n)[1]:
                 cfg, named = rest, others
                 pruned.append(e)
                 break
@@ -307,7 +307,7 @@ def search(
         sigma2, n = _round_noise(p, cfg, {**cfg, top: fits[top][1]}, floor, step_noise)
         scores = {}
         for c, (mse, q) in fits.items():
-            score, ok = _significant(cur - mse, EFFECT[c].n_params, cur, sigma2, n)
+            score, ok = _significant(cur - mse, EFFECT[c].charge(q), cur, sigma2, n)
             scores[c] = dict(
                 heldout_rmse=float(np.sqrt(mse)) * sc.y_half, score=float(score), significant=ok, value=q, mse=mse
             )

@@ -92,6 +92,11 @@ class AbstractEffect:
         """The parameters `q` in words (JSON-ready)."""
         return {}
 
+    def charge(self, q) -> int:
+        """The parameters the search charges against the noise at the value `q` (default: the
+        class's `n_params`; an effect whose forms differ much in size decides per form)."""
+        return self.n_params
+
     def positive_terms(self, q) -> bool:
         """Whether its output terms' coefficients are kept >= 0 at the value `q` (default:
         the class's `positive`; an effect whose forms differ decides per form)."""
