@@ -263,11 +263,13 @@ def padded_starts(r0s, x0, n_plays: int, pad_plays: int | None):
         return r0s, x0, None
     if not isinstance(pad_plays, (int, np.integer)) or pad_plays < n_plays:
         raise ValueError(f"`pad_plays` must be a whole number of at least n_plays={n_plays}, got {pad_plays!r}")
-    # Even with no padding the mask is made, so that every padded fit has one structure.
+    # Even with no padding the mask is made, so that every padded fit has one structure. On the
+    # host: these few small arrays would each compile a program per play count on the device.
     extra = int(pad_plays) - n_plays
-    r0s = jnp.concatenate([r0s, jnp.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
-    x0 = jnp.concatenate([x0, jnp.repeat(x0[-1:], extra)])
-    return r0s, x0, (jnp.arange(int(pad_plays)) < n_plays).astype(r0s.dtype)
+    r0s, x0 = np.asarray(r0s), np.asarray(x0)
+    r0s = np.concatenate([r0s, np.repeat(r0s[:, -1:], extra, axis=1)], axis=1)
+    x0 = np.concatenate([x0, np.repeat(x0[-1:], extra)])
+    return jnp.asarray(r0s), jnp.asarray(x0), jnp.asarray((np.arange(int(pad_plays)) < n_plays).astype(r0s.dtype))
 
 
 def padding_residuals(params, x0, active) -> list:

@@ -22,6 +22,8 @@ Back in the data's units: r = u_half r', w = w'/u_half (the PI output keeps the 
 output's unit), c = c' + u_mid Σ w, s = s', a = y_half a', offset = y_mid + y_half offset'.
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -247,13 +249,10 @@ def fit_gpi(
     best = int(jnp.argmin(loss))
     if not bool(jnp.isfinite(loss[best])):
         raise ValueError("every start of the fit produced non-finite residuals")
-    p = jax.tree.map(lambda a: a[best], params)
-    r, w, log_a, c, log_s = _unpack(p, r_bound, active)
-    r, w, x = r[:n_plays], w[:n_plays] / s.u_half, p.get("initial_states", x0)[:n_plays]
-    pi = PIOperator(r * s.u_half, w, s.u_mid + s.u_half * x)
-    model = GeneralizedPI(
-        pi, s.y_half * jnp.exp(log_a), c + s.u_mid * jnp.sum(w), jnp.exp(log_s), s.y_mid + s.y_half * p["offset"]
+    thresholds, weights, states, amplitudes, centres, scales, offset, rmse, start_rmse, result, n_steps = _chosen(
+        params, loss, results, steps, jnp.asarray(best), r_bound, active, x0, s, n_plays
     )
+    model = GeneralizedPI(PIOperator(thresholds, weights, states), amplitudes, centres, scales, offset)
     fields = {}
     if covariance is not None:
         T = jnp.shape(u)[0]
@@ -266,11 +265,30 @@ def fit_gpi(
             fit_initial_states,
             None if pad_plays is None else int(pad_plays),
         )
-    return GPIFit(
-        model=model,
-        rmse=jnp.sqrt(loss[best]) * s.y_half,
-        result=jax.tree.map(lambda a: a[best], results),
-        n_steps=steps[best],
-        start_rmse=jnp.sqrt(loss) * s.y_half,
-        **fields,
+    return GPIFit(model=model, rmse=rmse, result=result, n_steps=n_steps, start_rmse=start_rmse, **fields)
+
+
+@functools.partial(jax.jit, static_argnums=(9,))
+def _chosen(params, loss, results, steps, best, r_bound, active, x0, s, n_plays):
+    """The chosen start of `fit_gpi` in the data's units, as one compiled program (eagerly, its
+    small operations would each compile one for every play count).
+
+    **Returns:** the PI part's thresholds, weights and states, the output function's amplitudes,
+    centres and scales, the offset, and the fit's RMSE, every start's RMSE, result and steps.
+    """
+    p = jax.tree.map(lambda a: a[best], params)
+    r, w, log_a, c, log_s = _unpack(p, r_bound, active)
+    r, w, x = r[:n_plays], w[:n_plays] / s.u_half, p.get("initial_states", x0)[:n_plays]
+    return (
+        r * s.u_half,
+        w,
+        s.u_mid + s.u_half * x,
+        s.y_half * jnp.exp(log_a),
+        c + s.u_mid * jnp.sum(w),
+        jnp.exp(log_s),
+        s.y_mid + s.y_half * p["offset"],
+        jnp.sqrt(loss[best]) * s.y_half,
+        jnp.sqrt(loss) * s.y_half,
+        jax.tree.map(lambda a: a[best], results),
+        steps[best],
     )
