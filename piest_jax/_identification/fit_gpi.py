@@ -246,11 +246,12 @@ def fit_gpi(
         atol=atol,
         batch=max(1, min(batch, n_starts)),
     )
-    best = int(jnp.argmin(loss))
-    if not bool(jnp.isfinite(loss[best])):
+    loss_np = np.asarray(loss)
+    best = int(np.argmin(loss_np))
+    if not np.isfinite(loss_np[best]):
         raise ValueError("every start of the fit produced non-finite residuals")
     thresholds, weights, states, amplitudes, centres, scales, offset, rmse, start_rmse, result, n_steps = _chosen(
-        params, loss, results, steps, jnp.asarray(best), r_bound, active, x0, s, n_plays
+        params, loss, results, steps, best, r_bound, active, x0, s, n_plays
     )
     model = GeneralizedPI(PIOperator(thresholds, weights, states), amplitudes, centres, scales, offset)
     fields = {}

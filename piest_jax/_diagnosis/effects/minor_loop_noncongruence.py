@@ -35,7 +35,8 @@ FORMS = {
     "four_bands": (-0.5, 0.0, 0.5),
     "eight_bands": (-0.75, -0.5, -0.25, 0.0, 0.25, 0.5, 0.75),
 }
-# The samples the search needs per coefficient of the eight bands (see `grid`).
+# The samples the search needs per coefficient of a form larger than the charge the coarse
+# forms share (the eight bands; see `grid`).
 SAMPLES_PER_TERM = 40
 
 
@@ -79,8 +80,9 @@ class MinorLoopNoncongruence(AbstractEffect):
     def grid(self, p):
         # Held-out blocks of a short record do not tell 28 coefficients of four plays from a
         # memoryless map of the output: on 500 samples eight bands stood in for a saturation
-        # and for an asymmetry. They are tried where the search has 40 samples per coefficient.
-        return [f for f in FORMS if f != "eight_bands" or len(p.y) >= SAMPLES_PER_TERM * _count(f)]
+        # and for an asymmetry. A form charged beyond the shared charge is tried where the
+        # search has 40 samples per coefficient.
+        return [f for f in FORMS if _count(f) <= self.n_params or len(p.y) >= SAMPLES_PER_TERM * _count(f)]
 
     def describe(self, q):
         return {
