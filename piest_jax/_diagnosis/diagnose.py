@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from .._blas import on_one_blas_thread
 from .._data.record import Record
 from .._identification.compare import fit_percent
 from .._identification.loop import loop_direction
@@ -246,6 +247,7 @@ def _prune(p, cfg, named, sigma2, n):
     return cfg, named, pruned
 
 
+@on_one_blas_thread
 def search(
     rec: Record,
     *,
@@ -508,6 +510,7 @@ def evaluate_ic(rec: Record, sc: Scaling, model):
     return best
 
 
+@on_one_blas_thread
 def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnosis:
     """The whole workflow on one record: locate, name, and show the gap shrink.
 
