@@ -1,5 +1,6 @@
 """Test configuration: float64 everywhere unless a test asks for float32, deterministic hypothesis."""
 
+import contextlib
 import os
 import shutil
 import tempfile
@@ -81,12 +82,11 @@ def pytest_unconfigure(config):
         os.environ.pop("PIEST_COMPILE_CACHE", None)
 
 
-@pytest.fixture(autouse=True)
-def _optimized_when_marked(request):
-    """A test marked `optimized` compiles with XLA's optimisation passes on: one that runs its
-    programs on many draws spends longer running them unoptimised than compiling them (the
-    calibration studies over noise draws: 20 s each without the passes, 7-13 s with them)."""
-    if OPTIMIZED or request.node.get_closest_marker("optimized") is None:
+@contextlib.contextmanager
+def optimized_compilation():
+    """Compile with XLA's optimisation passes on inside the block (a module-scoped fixture's
+    work, which the `optimized` mark of a test does not reach)."""
+    if OPTIMIZED:
         yield
         return
     jax.config.update("jax_disable_most_optimizations", False)
@@ -94,6 +94,18 @@ def _optimized_when_marked(request):
         yield
     finally:
         jax.config.update("jax_disable_most_optimizations", True)
+
+
+@pytest.fixture(autouse=True)
+def _optimized_when_marked(request):
+    """A test marked `optimized` compiles with XLA's optimisation passes on: one that runs its
+    programs on many draws spends longer running them unoptimised than compiling them (the
+    calibration studies over noise draws: 20 s each without the passes, 7-13 s with them)."""
+    if request.node.get_closest_marker("optimized") is None:
+        yield
+        return
+    with optimized_compilation():
+        yield
 
 
 @pytest.fixture

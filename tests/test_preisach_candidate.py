@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import optimized_compilation
 
 import piest_jax as pj
 from piest_jax._cli import main
@@ -43,14 +44,18 @@ def record(u, noise=NOISE, seed=0):
     return pj.Record.from_arrays(np.arange(u.size) * 0.01, u, y)
 
 
+# The choices below run the generalized PI's fits on 3000 samples too (its gate opens on this
+# plant): with XLA's optimisation passes on they take about half as long (tests/conftest.py).
 @pytest.fixture(scope="module")
 def rich():
-    return pj.identify(record(reversals(0)), record(reversals(1), noise=0.0), **SMALL)
+    with optimized_compilation():
+        return pj.identify(record(reversals(0)), record(reversals(1), noise=0.0), **SMALL)
 
 
 @pytest.fixture(scope="module")
 def repeated():
-    return pj.identify(record(repeated_loop()), record(reversals(1), noise=0.0), **SMALL)
+    with optimized_compilation():
+        return pj.identify(record(repeated_loop()), record(reversals(1), noise=0.0), **SMALL)
 
 
 def test_a_preisach_plant_with_reversals_of_every_size_gets_the_preisach_model(rich):
@@ -134,6 +139,7 @@ def test_it_is_tried_only_when_everything_is_left_to_the_choice(options):
     assert result.selection.gpi is None and isinstance(result.fit, pj.PIFit)
 
 
+@pytest.mark.optimized
 def test_cli_fit_auto_writes_and_compensate_inverts_the_chosen_preisach_model(tmp_path, capsys, rich):
     def write(path, rec):
         np.savetxt(path, np.column_stack([rec.t, rec.u, rec.y]), delimiter=",", header="t,u,y", comments="")
