@@ -16,9 +16,10 @@ import tempfile
 OPTIMIZED = os.environ.get("PIEST_TEST_OPTIMIZED", "").strip().lower() in {"1", "yes", "true", "on"}
 os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "0" if OPTIMIZED else "1"
 # XLA's CPU fusion emitters (its default code generator for fused loops) spend most of a small
-# program's compilation; the older emitters compile tests/test_fit.py and tests/test_long_fit.py's programs
-# in 39 s instead of 102 s (the two files in 95 s instead of 167 s, one process), with the same
-# results. Set with the optimisation passes, for the same reason, and not in the optimised job.
+# program's compilation: with the older emitters, tests/test_fit.py's and tests/test_long_fit.py's
+# programs compile in 39 s instead of 102 s (the two files run in 95 s instead of 167 s, one
+# process), with results equal up to rounding. Off with the optimisation passes, for the same
+# reason, and on in the optimised job.
 FUSION_FLAG = "--xla_cpu_use_fusion_emitters=false"
 if not OPTIMIZED and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FUSION_FLAG}".strip()
