@@ -53,8 +53,35 @@ PARAM_PENALTY = 2.0
 MAX_EFFECTS = 3
 
 
+def _frozen(v):
+    """A hashable stand-in for a configuration value that tells apart every value `fit` does:
+    floats by their bits, tuples (and tuple subclasses such as creep's `Lags`) with their type
+    and attributes."""
+    if isinstance(v, dict):
+        return ("dict", tuple(sorted((k, _frozen(x)) for k, x in v.items())))
+    if isinstance(v, tuple | list):
+        attrs = tuple(sorted((k, _frozen(x)) for k, x in vars(v).items())) if hasattr(v, "__dict__") else ()
+        return (type(v).__name__, tuple(_frozen(x) for x in v), attrs)
+    if isinstance(v, np.ndarray):
+        return ("ndarray", v.dtype.str, v.shape, v.tobytes())
+    if isinstance(v, float | np.floating):
+        return ("float", float(v).hex())
+    return (type(v).__name__, v)
+
+
 def _fit_many(p, cfg, effect, values):
-    """Each grid value of `effect` added to `cfg`: (held-out MSE, value) of the best one."""
+    """Each grid value of `effect` added to `cfg`: (held-out MSE, value) of the best one.
+
+    The search asks for the same addition again (a pass of `_revisit` that keeps the others,
+    `_prune` revisiting what stays): the answer is kept on `p` for the search's life.
+    """
+    key = ("fit_many", effect, _frozen(cfg), _frozen(list(values)))
+    if key not in p.cache:
+        p.cache[key] = _fit_grid(p, cfg, effect, values)
+    return p.cache[key]
+
+
+def _fit_grid(p, cfg, effect, values):
     e = EFFECT[effect]
     H = None if e.play_side else _model.play_columns(p, cfg)
     Hs = None
@@ -70,6 +97,15 @@ def _fit_many(p, cfg, effect, values):
     def cv(b):
         return _model.cv_mse(p, b[1].A, {**cfg, effect: b[2]}, b[1].target)[0]
 
+    # The pattern search below steps back onto values it has fitted (a move and its reverse).
+    nearby: dict = {}
+
+    def near(q):
+        k = _frozen(q)
+        if k not in nearby:
+            nearby[k] = (*sse(q, None), q)
+        return nearby[k]
+
     # The grid is searched by the fitting error, and the few best values are scored on held-out
     # blocks: a value that fits better by bending where the data are sparse (a start-up
     # transient, one extreme excursion) does not predict the blocks it did not see.
@@ -81,8 +117,7 @@ def _fit_many(p, cfg, effect, values):
         # the chosen model should fit as well as the effect's form allows, or the gap left
         # would be taken for a second effect.
         for _ in range(4):
-            near = [(*sse(q, None), q) for q in e.neighbours(best[2], level)]
-            new = min([best, *near], key=lambda b: b[0])
+            new = min([best, *(near(q) for q in e.neighbours(best[2], level))], key=lambda b: b[0])
             if new[2] is best[2]:
                 break
             best = new

@@ -158,6 +158,10 @@ class Prepared:
         # The play weights are signed (`Scaling.signed_plays`), not kept >= 0.
         self.signed = bool(signed)
         self._plain = None
+        # What the diagnosis computes again and again on this record, kept for the record's
+        # life: the search's scores of configurations (`diagnose._fit_many`), creep's lags of
+        # the input (`effects/creep.py`).
+        self.cache: dict = {}
 
     # What the effects' grids ask of the input in every round, computed once.
 

@@ -119,8 +119,16 @@ class Creep(AbstractEffect):
         return len(q)
 
     def columns(self, q, p, v, drive, norm):
-        d = p.u if q.drive == "input" else drive
-        return np.asarray(lowpass(d, np.exp(-p.dt / np.asarray(q)))) - d[:, None]
+        if q.drive == "output":
+            return np.asarray(lowpass(drive, np.exp(-p.dt / np.asarray(q)))) - drive[:, None]
+        # Lags of the input are the same at every iteration of every fit the search makes with
+        # them: computed once per record (read-only, as they are shared).
+        key = ("creep_input_lags", tuple(q))
+        if key not in p.cache:
+            cols = np.asarray(lowpass(p.u, np.exp(-p.dt / np.asarray(q)))) - p.u[:, None]
+            cols.flags.writeable = False
+            p.cache[key] = cols
+        return p.cache[key]
 
     def transients(self, q, p):
         # A lag starting away from rest adds lam^(t+1) times its initial offset.
