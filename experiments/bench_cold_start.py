@@ -1,6 +1,6 @@
 """Start-up cost of every `piest` command: without the compilation cache, first and second run.
 
-    python experiments/bench_cold_start.py     # results/bench_cold_start.json (~15 min on 2 cores)
+    python experiments/bench_cold_start.py     # results/bench_cold_start.json (~6 min on 2 cores)
     python experiments/bench_cold_start.py --only reproduce   # re-measures one, keeps the rest
 
 Each command runs as a user runs it (`python -m piest_jax ...`, its own process) three times:
