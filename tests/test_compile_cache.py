@@ -71,15 +71,38 @@ def _without_timing(x):
     return {k: _without_timing(v) for k, v in x.items() if k != "seconds"} if isinstance(x, dict) else x
 
 
-# `reproduce` runs the paper's figure through programs whose inputs are checked before them, and
-# the map's program leaves out the check of its drawn inputs: a check of a traced value would be
-# a host callback, which JAX does not keep.
+def _diagnose_args(folder) -> list[str]:
+    """`diagnose` on a small record with creep, validated on a second: the joint refinement, the
+    validation from an input history and the standard errors all run."""
+    import jax
+    import numpy as np
+
+    from piest_jax import hidden_effect_record
+
+    for name, seed in (("ident.csv", 0), ("val.csv", 1)):
+        rec, _ = hidden_effect_record(("creep",), key=jax.random.PRNGKey(seed), n_samples=300)
+        rows = np.column_stack([rec.t, rec.u, rec.y])
+        np.savetxt(folder / name, rows, delimiter=",", header="t,u,y", comments="")
+    return ["diagnose", "ident.csv", "--validate", "val.csv", "--candidates", "creep,delay", "--quiet"]
+
+
+# `reproduce` runs the paper's figure through programs whose inputs are checked before them, the
+# map's program leaves out the check of its drawn inputs, and the diagnosis's refinement the
+# checks of its plays (their inputs finite by construction): a check of a traced value would be a
+# host callback, which JAX does not keep.
 @pytest.mark.parametrize(
     ("args", "results"),
-    [(_SIM, ["simulate.json", "simulate.csv"]), (["reproduce", "fig5"], ["fig5.json"]), (_MAP, ["pe_map.json"])],
-    ids=["simulate", "reproduce", "montecarlo"],
+    [
+        (_SIM, ["simulate.json", "simulate.csv"]),
+        (["reproduce", "fig5"], ["fig5.json"]),
+        (_MAP, ["pe_map.json"]),
+        (_diagnose_args, ["report.json"]),
+    ],
+    ids=["simulate", "reproduce", "montecarlo", "diagnose"],
 )
 def test_a_second_run_finds_every_program_and_writes_the_same(tmp_path, args, results):
+    if callable(args):
+        args = args(tmp_path)
     env = _env(tmp_path)
     first = _piest([*args, "--out", "a"], env, tmp_path)
     assert first.returncode == 0, first.stderr

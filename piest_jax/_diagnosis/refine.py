@@ -27,7 +27,7 @@ from .._identification.fit import _softplus_inv
 from .._identification.fit_data import pad_count
 from .._identification.solvers import SOLVERS as SOLVERS
 from .._identification.solvers import check_solver, least_squares_solver, result_name
-from .._operators.play import play
+from .._operators.play import _bank
 from .basis import N_PLAYS, THRESHOLDS
 from .effects import EFFECT, chain
 from .model import coefficient_slices
@@ -106,8 +106,12 @@ def _hysteresis(theta, st: Structure, u, rho):
     for e, s in effects:
         x0 = e.jax_initial_states(theta, s, g[0], x0)
     # The operator's own recurrence (the scan: thresholds that vary over time do not take the
-    # kernel, and the solver differentiates through it).
-    H = play(g, r, x0, method="scan")
+    # kernel, and the solver differentiates through it), without `play`'s checks of traced
+    # values: a check is a host callback, which keeps the program out of the persistent
+    # compilation cache of `piest diagnose`. The inputs are finite by construction (the record
+    # is checked, the parameters are logarithms and softpluses), and a step that overflows
+    # gives a non-finite loss, which `refine` does not accept.
+    H = _bank(g, r, x0, "scan")
     v = H @ _play_weights(theta) + theta["offset"]
     for e, s in effects:
         extra = e.jax_play_terms(theta, s, H)

@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from ..._operators.play import play
+from ..._operators.play import _bank
 from ..basis import THRESHOLDS, history_states, plays
 from ..effect import AbstractEffect
 
@@ -57,10 +57,11 @@ class InitialState(AbstractEffect):
         return tuple(float(v) for v in theta["turns"]), []
 
     def jax_initial_states(self, theta, static, g0, x0):
-        # The history u0 -> turns -> u0 run through the play operator from relaxed states at u0.
+        # The history u0 -> turns -> u0 run through the play operator from relaxed states at u0,
+        # without `play`'s checks of traced values, as in `refine._hysteresis` (there: why).
         r = jnp.asarray(THRESHOLDS, g0.dtype)
         history = jnp.append(jnp.asarray(theta["turns"], g0.dtype), g0)
-        return play(history, r, jnp.full(r.shape, g0), method="scan")[-1]
+        return _bank(history, r, jnp.full(r.shape, g0), "scan")[-1]
 
     def draw(self, prng, ctx):
         # Memory of an earlier excursion beyond what this record reaches first.
