@@ -50,25 +50,41 @@ def _summary(s):
 def test_a_search_fits_each_addition_once_and_answers_as_without_memory(pair_record, monkeypatch):
     asked = collections.Counter()
     grid = _diagnose._fit_grid
+    fits = collections.Counter()
+    fit = _diagnose._model.fit
 
     def counted(p, cfg, effect, values):
         asked[(effect, _diagnose._frozen(cfg))] += 1
         return grid(p, cfg, effect, values)
 
+    def counted_fit(p, cfg, **kwargs):
+        fits["n"] += 1
+        return fit(p, cfg, **kwargs)
+
     monkeypatch.setattr(_diagnose, "_fit_grid", counted)
+    monkeypatch.setattr(_diagnose._model, "fit", counted_fit)
     remembered = _diagnose.search(pair_record, candidates=CANDIDATES, solver=None, uncertainty=False)
     assert remembered["effects"], "the record's effects are not found: the test shows nothing"
     assert max(asked.values()) == 1, asked
+    remembered_fits = fits["n"]
 
-    calls = sum(asked.values())
-    asked.clear()
-    # Without the memory: every request fitted again.
-    monkeypatch.setattr(_diagnose, "_fit_many", lambda p, cfg, effect, values: counted(p, cfg, effect, values))
+    # Without any memory: a key that matches nothing defeats the search's (its additions, its
+    # pattern search's steps), and creep's lags of the input are filtered at every call.
+    fits.clear()
+    monkeypatch.setattr(_diagnose, "_frozen", lambda v: object())
+
+    def filtered_every_time(q, p, v, drive, norm):
+        d = p.u if q.drive == "input" else drive
+        return np.asarray(_creep.lowpass(d, np.exp(-p.dt / np.asarray(q)))) - d[:, None]
+
+    monkeypatch.setattr(EFFECT["creep"], "columns", filtered_every_time)
     recomputed = _diagnose.search(pair_record, candidates=CANDIDATES, solver=None, uncertainty=False)
-    assert sum(asked.values()) > calls, "no request repeats on this record: the memory is not exercised"
+    assert fits["n"] > remembered_fits, "nothing repeats on this record: the memory is not exercised"
+    # The same answers to the last bit.
     assert _summary(remembered) == _summary(recomputed)
     for label in ("model_base", "model_final"):
         np.testing.assert_array_equal(remembered[label]["coef"], recomputed[label]["coef"])
+        assert remembered[label]["cfg"] == recomputed[label]["cfg"]
 
 
 def test_input_lags_are_filtered_once_and_equal_the_recurrence(pair_record, monkeypatch):
@@ -86,8 +102,10 @@ def test_input_lags_are_filtered_once_and_equal_the_recurrence(pair_record, monk
     again = EFFECT["creep"].columns(q, p, None, None, None)
     assert len(filtered) == 1
     assert again is first and not first.flags.writeable
-    # The plain recurrence, sample by sample, from rest at the first input.
+    # What every fit filtered before, to the last bit.
     lam = np.exp(-p.dt / np.asarray(q))
+    np.testing.assert_array_equal(first, np.asarray(lowpass(p.u, lam)) - p.u[:, None])
+    # The plain recurrence, sample by sample, from rest at the first input.
     state, ref = np.full(2, p.u[0]), np.empty((len(p.u), 2))
     for i, ui in enumerate(p.u):
         state = lam * state + (1 - lam) * ui

@@ -109,8 +109,10 @@ def _hysteresis(theta, st: Structure, u, rho):
     # kernel, and the solver differentiates through it), without `play`'s checks of traced
     # values: a check is a host callback, which keeps the program out of the persistent
     # compilation cache of `piest diagnose`. The inputs are finite by construction (the record
-    # is checked, the parameters are logarithms and softpluses), and a step that overflows
-    # gives a non-finite loss, which `refine` does not accept.
+    # is checked, the parameters are logarithms and softpluses, thresholds cannot turn
+    # negative). A step whose parameters overflow gives a non-finite loss (infinite thresholds
+    # times a rate of zero), which the solver does not take and `refine` would not accept,
+    # where the checks raised and ended the diagnosis.
     H = _bank(g, r, x0, "scan")
     v = H @ _play_weights(theta) + theta["offset"]
     for e, s in effects:

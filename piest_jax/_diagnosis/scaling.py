@@ -160,7 +160,8 @@ class Prepared:
         self._plain = None
         # What the diagnosis computes again and again on this record, kept for the record's
         # life: the search's scores of configurations (`diagnose._fit_many`), creep's lags of
-        # the input (`effects/creep.py`).
+        # the input (`effects/creep.py`). Its keys leave out the record's arrays: a record
+        # whose arrays change is a new `Prepared` (`prepared`), never this one changed.
         self.cache: dict = {}
 
     # What the effects' grids ask of the input in every round, computed once.
