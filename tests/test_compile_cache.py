@@ -86,6 +86,33 @@ def _diagnose_args(folder) -> list[str]:
     return ["diagnose", "ident.csv", "--validate", "val.csv", "--candidates", "creep,delay", "--quiet"]
 
 
+def _record_and_model(folder):
+    """A small record through a PI operator with creep, and that model as a model file."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import piest_jax as pj
+
+    model = pj.HysteresisModel(
+        pj.PIOperator(jnp.array([0.0, 0.4, 0.9]), jnp.array([1.0, 0.5, 0.3])), pj.Creep([0.05, 2.0], [0.2, -0.1], 1e-3)
+    )
+    t = np.arange(600) * 1e-3
+    u = 1.5 * np.sin(2 * np.pi * 4 * t)
+    y = np.asarray(model(jnp.asarray(u)))
+    np.savetxt(folder / "r.csv", np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    pj.save_model(folder / "m.json", model)
+
+
+def _estimate_args(folder) -> list[str]:
+    _record_and_model(folder)
+    return ["estimate", "r.csv", "--quiet"]
+
+
+def _compensate_args(folder) -> list[str]:
+    _record_and_model(folder)
+    return ["compensate", "m.json", "r.csv", "--column", "y", "--quiet"]
+
+
 # `reproduce` runs the paper's figure through programs whose inputs are checked before them, the
 # map's program leaves out the check of its drawn inputs, and the diagnosis's refinement the
 # checks of its plays (their inputs finite by construction): a check of a traced value would be a
@@ -96,9 +123,11 @@ def _diagnose_args(folder) -> list[str]:
         (_SIM, ["simulate.json", "simulate.csv"]),
         (["reproduce", "fig5"], ["fig5.json"]),
         (_MAP, ["pe_map.json"]),
+        (_estimate_args, ["estimate.json"]),
+        (_compensate_args, ["compensate.json"]),
         (_diagnose_args, ["report.json"]),
     ],
-    ids=["simulate", "reproduce", "montecarlo", "diagnose"],
+    ids=["simulate", "reproduce", "montecarlo", "estimate", "compensate", "diagnose"],
 )
 def test_a_second_run_finds_every_program_and_writes_the_same(tmp_path, args, results):
     if callable(args):
