@@ -10,8 +10,12 @@ import subprocess
 import sys
 import time
 
+import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
+import piest_jax as pj
 from piest_jax._cli import compile_cache
 
 _SIM = ["simulate", "--input", "triangle", "--thresholds", "0,0.5,1", "--weights", "1,0.5,0.25", "--quiet"]
@@ -71,35 +75,27 @@ def _without_timing(x):
     return {k: _without_timing(v) for k, v in x.items() if k != "seconds"} if isinstance(x, dict) else x
 
 
+def _write(path, t, u, y):
+    np.savetxt(path, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+
+
 def _diagnose_args(folder) -> list[str]:
     """`diagnose` on a small record with creep, validated on a second: the joint refinement, the
     validation from an input history and the standard errors all run."""
-    import jax
-    import numpy as np
-
-    from piest_jax import hidden_effect_record
-
     for name, seed in (("ident.csv", 0), ("val.csv", 1)):
-        rec, _ = hidden_effect_record(("creep",), key=jax.random.PRNGKey(seed), n_samples=300)
-        rows = np.column_stack([rec.t, rec.u, rec.y])
-        np.savetxt(folder / name, rows, delimiter=",", header="t,u,y", comments="")
+        rec, _ = pj.hidden_effect_record(("creep",), key=jax.random.PRNGKey(seed), n_samples=300)
+        _write(folder / name, rec.t, rec.u, rec.y)
     return ["diagnose", "ident.csv", "--validate", "val.csv", "--candidates", "creep,delay", "--quiet"]
 
 
 def _record_and_model(folder):
     """A small record through a PI operator with creep, and that model as a model file."""
-    import jax.numpy as jnp
-    import numpy as np
-
-    import piest_jax as pj
-
     model = pj.HysteresisModel(
         pj.PIOperator(jnp.array([0.0, 0.4, 0.9]), jnp.array([1.0, 0.5, 0.3])), pj.Creep([0.05, 2.0], [0.2, -0.1], 1e-3)
     )
     t = np.arange(600) * 1e-3
     u = 1.5 * np.sin(2 * np.pi * 4 * t)
-    y = np.asarray(model(jnp.asarray(u)))
-    np.savetxt(folder / "r.csv", np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    _write(folder / "r.csv", t, u, np.asarray(model(jnp.asarray(u))))
     pj.save_model(folder / "m.json", model)
 
 

@@ -62,8 +62,6 @@ def _frozen(v):
     if isinstance(v, tuple | list):
         attrs = tuple(sorted((k, _frozen(x)) for k, x in vars(v).items())) if hasattr(v, "__dict__") else ()
         return (type(v).__name__, tuple(_frozen(x) for x in v), attrs)
-    if isinstance(v, np.ndarray):
-        return ("ndarray", v.dtype.str, v.shape, v.tobytes())
     if isinstance(v, float | np.floating):
         return ("float", float(v).hex())
     return (type(v).__name__, v)
