@@ -41,6 +41,22 @@ def assert_same_fit(a, b, rtol, atol):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=rtol, atol=atol, err_msg=name)
 
 
+# Two solves of one objective that differ only in rounding (the order of sums, a compiled or an
+# op-by-op program) end where the loss stops decreasing in floating point: loss values place an
+# optimum only to about sqrt(eps) relative, so a parameter of two such ends may differ by 1e-9 while
+# their losses agree to the last digits (measured here: two starts 6.3e-10 apart in a threshold,
+# RMSE equal to 3e-17, and which start is best then depends on the CPU's instruction set).
+SQRT_EPS = float(np.sqrt(np.finfo(np.float64).eps))
+
+
+def assert_same_optimum(a, b):
+    """The same optimum to rounding: the losses agree to 1e-12, the parameters to 2 sqrt(eps)."""
+    for name in ("rmse", "start_rmse"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, err_msg=name)
+    for name in ("thresholds", "weights", "offset", "initial_states"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=2 * SQRT_EPS, atol=1e-12, err_msg=name)
+
+
 def test_recovers_known_operator():
     u, y = record()
     f = pj.fit_pi_core(u, y, 3, key=KEY)
@@ -66,7 +82,8 @@ def test_equals_fit_pi(options):
     # fit_pi pads the record with masked samples that move no play: the same objective, solved by
     # the same compiled solve from the same starts, so the same fit (to rounding). The padding
     # changes the order of the sums, so at the default tolerances one solve may stop an iteration
-    # before the other (thresholds 3.5e-9 apart on one CPU); solved to 1e-12 both reach the same optimum.
+    # before the other (thresholds 3.5e-9 apart on one CPU); solved to 1e-12 both reach the same
+    # optimum, to the precision that loss values place one (`assert_same_optimum`).
     u, y = record(noise_seed=7)
     options = dict(options, rtol=1e-12, atol=1e-14)
     if options.get("mask") == "head":
@@ -74,7 +91,7 @@ def test_equals_fit_pi(options):
     core = pj.fit_pi_core(u, y, 3, key=KEY, **options)
     host = pj.fit_pi(u, y, 3, key=KEY, covariance=None, **options)
     assert bool(core.result == host.result == optx.RESULTS.successful)
-    assert_same_fit(core, host, rtol=1e-9, atol=1e-12)
+    assert_same_optimum(core, host)
     np.testing.assert_array_equal(core.unexcited, host.flagged)
 
 
@@ -84,7 +101,7 @@ def test_jit_equals_eager():
     jitted = fit_jit(u, y, mask=np.ones(T))  # the refusals below reuse this compilation
     # Every start reaches the same optimum here, so which of them is best is down to rounding,
     # which differs once the whole fit is compiled as one program: compare the fits, not the steps.
-    assert_same_fit(jitted, eager, rtol=1e-9, atol=1e-12)
+    assert_same_optimum(jitted, eager)
 
 
 def test_vmap_over_records_equals_separate_fits():
