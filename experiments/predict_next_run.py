@@ -12,6 +12,13 @@ For each: `pj.identify` with its defaults (the model chosen by held-out error, t
 and scores tried, what was rejected as undetermined), its raw and IC validation RMSE, and
 `pj.diagnose` on the same pair (its effects named and its `final_rmse_ic`). Float64, as the CLI.
 
+On Aye, where the raw RMSE is mostly a level, `cycle_levels` asks whether the level follows the
+loop's amplitude: the validation run's input sweeps its amplitude down to rest and back up, so
+each whole cycle (maximum to maximum of the input) gives the measured mean output at one
+amplitude, and each model's mean error there. Fitted against the cycle's squared half-range
+relative to the largest (0 at rest, 1 at the largest loop), the slope is how far a model moves
+its level between a loop at rest and the largest one, beside how far the device moves its own.
+
 Writes experiments/results/predict_next_run.json.
 Run: python experiments/predict_next_run.py   (~4 min on 2 cores)
 """
@@ -41,7 +48,8 @@ def aye_pair():
     return pj.load_dataset("piezo_aye2018_identification"), pj.load_dataset("piezo_aye2018_validation")
 
 
-def fit_summary(rec, val) -> dict:
+def fit_summary(rec, val) -> tuple[dict, np.ndarray]:
+    """The summary, and the raw prediction of `val`."""
     t0 = time.perf_counter()
     ident = pj.identify(rec, val, key=jax.random.key(0))
     secs = time.perf_counter() - t0
@@ -52,12 +60,14 @@ def fit_summary(rec, val) -> dict:
         {k: d[k] for k in ("validation_rmse", "validation_starts_at_rest", "validation_rmse_ic") if k in d},
         seconds=secs,
     )
-    return keep
+    return keep, np.asarray(ident.validation.raw.prediction)
 
 
-def diagnose_summary(rec, val) -> dict:
+def diagnose_summary(rec, val) -> tuple[dict, np.ndarray]:
+    """The summary, and the final model's raw prediction of `val`."""
     t0 = time.perf_counter()
-    d = pj.diagnose(rec, val).to_json()
+    diagnosis = pj.diagnose(rec, val)
+    d = diagnosis.to_json()
     secs = time.perf_counter() - t0
     v = d["validation"]
     return {
@@ -66,7 +76,29 @@ def diagnose_summary(rec, val) -> dict:
         "validation_final_rmse": v["final_rmse"],
         "validation_final_rmse_ic": v["final_rmse_ic"],
         "seconds": secs,
-    }
+    }, np.asarray(diagnosis.validation.final_prediction)
+
+
+def cycle_levels(val, predictions: dict) -> dict:
+    """Per whole input cycle of `val` (maximum to maximum, from 1 s on): the input's half-range,
+    the measured mean output and each prediction's mean error; and for each, the slope of the
+    cycle means against the squared relative half-range (how far the level moves from a loop at
+    rest to the largest one)."""
+    t, u, y = (np.asarray(a) for a in (val.t, val.u, val.y))
+    du = np.diff(u)
+    peaks = np.flatnonzero((du[:-1] > 0) & (du[1:] <= 0)) + 1
+    peaks = peaks[t[peaks] >= 1.0]
+    cycles = [slice(a, b) for a, b in zip(peaks[:-1], peaks[1:], strict=True)]
+    half = np.array([0.5 * np.ptp(u[c]) for c in cycles])
+    out = {"half_range": half.tolist(), "measured_mean": [float(np.mean(y[c])) for c in cycles]}
+    x = (half / half.max()) ** 2
+    design = np.column_stack([np.ones_like(x), x])
+    out["slope_measured"] = float(np.linalg.lstsq(design, out["measured_mean"], rcond=None)[0][1])
+    for name, pred in predictions.items():
+        err = [float(np.mean(np.asarray(pred)[c] - y[c])) for c in cycles]
+        out[f"{name}_mean_error"] = err
+        out[f"slope_{name}"] = float(np.linalg.lstsq(design, np.asarray(out["measured_mean"]) + err, rcond=None)[0][1])
+    return out
 
 
 def main() -> None:
@@ -74,10 +106,14 @@ def main() -> None:
     out = {"chandra_split": {"identify_before_s": SPLIT, "predict_until_s": END}, "aye": {}}
     for name, (rec, val) in (("chandra_split", chandra_pair()), ("aye", aye_pair())):
         out[name]["n_samples"] = [rec.n_samples, val.n_samples]
-        out[name]["fit"] = fit_summary(rec, val)
+        out[name]["fit"], fit_pred = fit_summary(rec, val)
         print(name, "fit", {k: out[name]["fit"].get(k) for k in ("model", "validation_rmse_ic", "seconds")})
-        out[name]["diagnose"] = diagnose_summary(rec, val)
+        out[name]["diagnose"], diagnose_pred = diagnose_summary(rec, val)
         print(name, "diagnose", out[name]["diagnose"])
+        if name == "aye":
+            levels = cycle_levels(val, {"fit": fit_pred, "diagnose": diagnose_pred})
+            out[name]["cycle_levels"] = levels
+            print(name, "level slopes", {k: v for k, v in levels.items() if k.startswith("slope")})
     pj.write_json(RESULTS / "predict_next_run.json", out)
 
 
