@@ -111,6 +111,31 @@ def test_estimate_on_a_linear_regression():
         _cov.estimate(A, e, method="x")
 
 
+@pytest.mark.parametrize("method", _cov.METHODS)
+@pytest.mark.parametrize("delta", [1e-2, 1e-6, 1e-8, 1e-10])
+def test_nearly_collinear_columns_keep_their_variances(method, delta):
+    # J = Jw M with Jw well conditioned and M exact: two pairs of columns a `delta` apart (J's
+    # scaled condition number about 1/delta, full rank), so the covariance is M⁻¹ Cov_w M⁻ᵀ,
+    # and the offset's column, which M leaves alone, keeps its variance.
+    # Formed as (JᵀJ)⁻¹ Jᵀ Ω J (JᵀJ)⁻¹ in the parameters' coordinates, the variances came out
+    # negative from delta = 1e-8 on (the offset's too) and were read as zero standard errors.
+    N = 4000
+    t = np.linspace(0.0, 1.0, N)
+    x = np.sin(7 * t) + 0.3 * t
+    e = np.convolve(np.random.default_rng(0).standard_normal(N + 50), np.ones(50) / 50, "valid")[:N] * 0.1
+    Jw = np.column_stack([x, np.cos(31 * t), np.ones(N), x**2, t])
+    M = np.eye(5)
+    M[0, 1], M[1, 1], M[3, 4], M[4, 4] = 1.0, delta, 1.0, delta
+    want, _, _, info_w = _cov.estimate(Jw, e, method=method)
+    Minv = np.linalg.inv(M)
+    want = Minv @ want @ Minv.T
+    cov, se, bad, info = _cov.estimate(Jw @ M, e, method=method)
+    assert info["rank"] == 5 and not bad.any() and info["bandwidth"] == info_w["bandwidth"]
+    assert np.all(np.diag(cov) > 0) and np.all(np.isfinite(se))
+    # Rounding of a matrix of condition number 1/delta, with a margin of 100.
+    np.testing.assert_allclose(np.diag(cov), np.diag(want), rtol=100 * np.finfo(float).eps / delta)
+
+
 def test_rank_deficient_parameters_are_named_not_nan():
     # Columns 1 and 2 are collinear and column 3 is zero: three undetermined, one determined.
     rng = np.random.default_rng(2)

@@ -282,11 +282,13 @@ def estimate(J, e, *, method: str = "newey-west", eps=None):
     N, p = J.shape
     norms = np.linalg.norm(J, axis=0)
     d = np.where(norms > 0, norms, 1.0)
-    _, S, Vt = np.linalg.svd(J / d, full_matrices=False)
+    U, S, Vt = np.linalg.svd(J / d, full_matrices=False)
     b = bandwidth(e) if method == "newey-west" and N > p else None
     blocks = None
     if b is not None:
-        cs = np.concatenate([np.zeros((1, p)), np.cumsum(J * e[:, None], axis=0)])
+        # The block sums of J's left singular vectors (J / d = U S Vᵀ) times the residuals: the
+        # meat in the coordinates where the sandwich divides by S once (see `_sandwich`).
+        cs = np.concatenate([np.zeros((1, U.shape[1])), np.cumsum(U * e[:, None], axis=0)])
         W = cs[b:] - cs[:-b]
         blocks = W.T @ W
     return _sandwich(S, Vt, norms, N, p, float(e @ e), method, b, blocks, _floor(N, p, eps))
@@ -316,18 +318,14 @@ def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=No
     _, S, Vt = np.linalg.svd(factor / d, full_matrices=True)
     S = np.pad(S, (0, p - S.shape[0]))  # a factor of fewer rows than columns: the rest are zero
     b = int(window) if method == "newey-west" else None
-    return _sandwich(
-        S,
-        Vt,
-        norms,
-        N,
-        p,
-        float(ete),
-        method,
-        b,
-        None if b is None else np.asarray(blocks, np.float64),
-        _floor(np.sqrt(N), p, eps),
-    )
+    blocks_u = None
+    if b is not None:
+        # The block sums in the coordinates of J's left singular vectors, U = J V S⁻¹ / d, as
+        # `_sandwich` takes them; where S is 0 the direction is beyond the rank and unused.
+        inv = np.divide(1.0, S, out=np.zeros_like(S), where=S > 0)
+        T = inv[:, None] * Vt / d
+        blocks_u = T @ np.asarray(blocks, np.float64) @ T.T
+    return _sandwich(S, Vt, norms, N, p, float(ete), method, b, blocks_u, _floor(np.sqrt(N), p, eps))
 
 
 def _gram_svd(G):
@@ -371,11 +369,20 @@ def gram_deficient(G, N: int, eps=None):
 
 def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, rel):
     """The covariance from the scaled J's singular values `S` and right vectors `Vt` of `N`
-    samples, dropping those below `rel` times the largest."""
+    samples, dropping those below `rel` times the largest; for Newey-West, `blocks` is Σ W Wᵀ
+    of the block sums of the residuals times J's left singular vectors U (J / d = U S Vᵀ).
+
+    With A = V S⁻¹ / d, J's pseudo-inverse without its Uᵀ, (JᵀJ)⁺ = A Aᵀ and the sandwich
+    (JᵀJ)⁺ Jᵀ Ω J (JᵀJ)⁺ = A (Uᵀ Ω U) Aᵀ: S enters once, where the product of (JᵀJ)⁺, Jᵀ Ω J
+    and (JᵀJ)⁺ formed in the parameters' coordinates enters it four times. Near the rank floor
+    (S of 1e-8 and below) that product's terms reach 1e30 and cancel: its variances came out
+    negative, the offset's too, and a negative variance read as zero called a parameter the
+    record barely resolves known exactly. Both forms are also Gram matrices (F Fᵀ) here, so no
+    variance rounds below zero.
+    """
     d = np.where(norms > 0, norms, 1.0)
     rank, deficient = _identifiable(S, Vt, norms, p, rel)
-    V = Vt[:rank].T
-    bread = (V / S[:rank] ** 2) @ V.T / np.outer(d, d)  # (JᵀJ)⁺ on the identifiable subspace
+    A = Vt[:rank].T / S[:rank] / d[:, None]
     dof = N - p
     info = {"method": method, "dof": dof, "rank": rank, "bandwidth": None}
     if dof < 1:
@@ -384,10 +391,12 @@ def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, rel):
     sigma2 = ete / dof
     info["sigma"] = float(np.sqrt(sigma2))
     if method == "gauss-newton":
-        cov = sigma2 * bread
+        cov = sigma2 * (A @ A.T)
     else:
-        meat = blocks / b * N / (N - b + 1)
-        cov = bread @ meat @ bread * N / dof
+        meat = blocks[:rank, :rank] / b * N / (N - b + 1)
+        lam, Q = np.linalg.eigh(0.5 * (meat + meat.T))
+        F = A @ (Q * np.sqrt(np.maximum(lam, 0.0)))
+        cov = F @ F.T * N / dof
         info["bandwidth"] = b
     cov = 0.5 * (cov + cov.T)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
