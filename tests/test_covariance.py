@@ -134,6 +134,17 @@ def test_nearly_collinear_columns_keep_their_variances(method, delta):
     assert np.all(np.diag(cov) > 0) and np.all(np.isfinite(se))
     # Rounding of a matrix of condition number 1/delta, with a margin of 100.
     np.testing.assert_allclose(np.diag(cov), np.diag(want), rtol=100 * np.finfo(float).eps / delta)
+    # The long-record path from triangular factors of J and of the block sums, as `moments`
+    # accumulates them: the same covariance, to the factors' accuracy (from Σ W Wᵀ itself the
+    # error grows like 1/delta², 3e3 eps/delta at delta = 1e-2 and 1.6e11 at 1e-10).
+    J = Jw @ M
+    b = info["bandwidth"] or 1
+    cs = np.concatenate([np.zeros((1, 5)), np.cumsum(J * e[:, None], axis=0)])
+    Rw = np.linalg.qr(cs[b:] - cs[:-b], mode="r")
+    long, _, bad, info = _cov.estimate_moments(np.linalg.qr(J, mode="r"), Rw, e @ e, N, method=method, window=b)
+    assert info["rank"] == 5 and not bad.any()
+    # The factors' rounding grows like a sum of N terms (`estimate_moments`' rank floor): √N·eps.
+    np.testing.assert_allclose(np.diag(long), np.diag(want), rtol=10 * np.sqrt(N) * np.finfo(float).eps / delta)
 
 
 def test_rank_deficient_parameters_are_named_not_nan():
@@ -330,11 +341,16 @@ def test_long_records_give_the_dense_estimate_in_bounded_memory(method, states, 
     want = _cov.estimate(np.asarray(J)[:, index], e, method=method)
     window = _cov.bandwidth(e) if method == "newey-west" else 1
     assert method == "gauss-newton" or window > 2
-    R, blocks, ete = _cov.moments(_fit.run, layout, theta, un, y, mask, s, xn, zn, dt, window, 64)
+    R, Rw, ete = _cov.moments(_fit.run, layout, theta, un, y, mask, s, xn, zn, dt, window, 64)
     np.testing.assert_allclose(np.asarray(R).T @ np.asarray(R), np.asarray(J).T @ np.asarray(J), rtol=1e-10, atol=1e-10)
+    if method == "newey-west":  # Rw is a factor of the block sums' Σ W Wᵀ
+        g = np.asarray(J) * e[:, None]
+        cs = np.concatenate([np.zeros((1, g.shape[1])), np.cumsum(g, axis=0)])
+        W = cs[window:] - cs[:-window]
+        np.testing.assert_allclose(np.asarray(Rw).T @ np.asarray(Rw), W.T @ W, rtol=1e-10, atol=1e-12)
     got = _cov.estimate_moments(
         np.asarray(R)[:, index],
-        np.asarray(blocks)[np.ix_(index, index)],
+        np.asarray(Rw)[:, index],
         float(ete),
         1000,
         method=method,

@@ -204,11 +204,13 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     weights (0 leaves a sample out), `window` the Newey-West block length and `chunk` the chunk
     length.
 
-    **Returns:** `(R (p, p), blocks (p, p), eTe)`: the triangular factor of the weighted rows'
+    **Returns:** `(R (p, p), Rw (p, p), eTe)`: the triangular factor of the weighted rows'
     J = QR, by a QR of the factor so far stacked on each chunk's rows (so RᵀR = JᵀJ, with J's
     singular values to the accuracy of a QR of J, where JᵀJ itself would square its condition
-    number), eᵀe, and Σ_t W_t W_tᵀ over the overlapping block sums W_t = Σ of g_i = J_i e_i over
-    the `window` samples ending at t (every t >= window - 1).
+    number); the same factor of the overlapping block sums W_t = Σ of g_i = J_i e_i over the
+    `window` samples ending at t (every t >= window - 1), RwᵀRw = Σ_t W_t W_tᵀ, for the same
+    reason (`estimate_moments` turns them by S⁻¹, where Σ W Wᵀ would have lost cond² eps); and
+    eᵀe.
     """
     p = theta.shape[0]
     T = u.shape[0]
@@ -219,7 +221,7 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     s0, ds0, rows = chunk_rows(run, layout, theta, s, x0, z0, dt)
 
     def body(carry, ch):
-        states, dstates, tail, R, blocks, ete = carry
+        states, dstates, tail, R, Rw, ete = carry
         (uu, yy, mm), k = ch
         ii = k * chunk + jnp.arange(chunk)
         pred, after, J, dafter = rows(states, dstates, uu)
@@ -227,12 +229,13 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
         e = (yy - pred) * mm
         W, tail = block_sums(tail, (J * e[None, :]).T, ii, T)
         R = jnp.linalg.qr(jnp.concatenate([R, J.T]), mode="r")
-        return (after, dafter, tail, R, blocks + W.T @ W, ete + e @ e), None
+        Rw = jnp.linalg.qr(jnp.concatenate([Rw, W]), mode="r")
+        return (after, dafter, tail, R, Rw, ete + e @ e), None
 
     zero = jnp.zeros((p, p), theta.dtype)
     init = (s0, ds0, jnp.zeros((window, p), theta.dtype), zero, zero, jnp.zeros((), theta.dtype))
-    (_, _, _, R, blocks, ete), _ = lax.scan(body, init, (data, numbers))
-    return R, blocks, ete
+    (_, _, _, R, Rw, ete), _ = lax.scan(body, init, (data, numbers))
+    return R, Rw, ete
 
 
 def block_sums(tail, g, ii, T: int):
@@ -295,8 +298,8 @@ def estimate(J, e, *, method: str = "newey-west", eps=None):
 
 
 def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=None):
-    """`estimate` from J's triangular factor, the block sums' Σ W Wᵀ and eᵀe ([`moments`][]),
-    for records too long to hold J.
+    """`estimate` from J's triangular factor, a factor of the block sums' Σ W Wᵀ and eᵀe
+    ([`moments`][]), for records too long to hold J.
 
     The singular values of the column-scaled J are those of the column-scaled factor. The rank
     test's floor is max(√N, p)·eps·s_max here, where `estimate`'s is max(N, p)·eps·s_max: the
@@ -304,8 +307,9 @@ def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=No
     and N·eps would call every parameter of a float32 fit on 10⁶ samples free (0.12 s_max).
 
     **Arguments:** `factor` (k, p), any matrix with factorᵀ factor = JᵀJ (the `R` of `moments`,
-    its columns selected and mapped); `blocks` (p, p), `ete`; `N` the fitted samples; `method`;
-    `window` the block length `blocks` was summed over; `eps` as in `estimate`.
+    its columns selected and mapped); `blocks` (k', p), any matrix with blocksᵀ blocks = Σ W Wᵀ
+    (the `Rw` of `moments`, mapped alike); `ete`; `N` the fitted samples; `method`; `window` the
+    block length the block sums were taken over; `eps` as in `estimate`.
 
     **Returns:** as `estimate`.
     """
@@ -321,10 +325,11 @@ def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=No
     blocks_u = None
     if b is not None:
         # The block sums in the coordinates of J's left singular vectors, U = J V S⁻¹ / d, as
-        # `_sandwich` takes them; where S is 0 the direction is beyond the rank and unused.
+        # `_sandwich` takes them (where S is 0 the direction is beyond the rank and unused):
+        # turned as a factor, F Tᵀ, whose cancellation costs cond eps, not cond² eps.
         inv = np.divide(1.0, S, out=np.zeros_like(S), where=S > 0)
-        T = inv[:, None] * Vt / d
-        blocks_u = T @ np.asarray(blocks, np.float64) @ T.T
+        F = np.asarray(blocks, np.float64) @ (inv[:, None] * Vt / d).T
+        blocks_u = F.T @ F
     return _sandwich(S, Vt, norms, N, p, float(ete), method, b, blocks_u, _floor(np.sqrt(N), p, eps))
 
 
@@ -372,13 +377,15 @@ def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, rel):
     samples, dropping those below `rel` times the largest; for Newey-West, `blocks` is Σ W Wᵀ
     of the block sums of the residuals times J's left singular vectors U (J / d = U S Vᵀ).
 
-    With A = V S⁻¹ / d, J's pseudo-inverse without its Uᵀ, (JᵀJ)⁺ = A Aᵀ and the sandwich
-    (JᵀJ)⁺ Jᵀ Ω J (JᵀJ)⁺ = A (Uᵀ Ω U) Aᵀ: S enters once, where the product of (JᵀJ)⁺, Jᵀ Ω J
-    and (JᵀJ)⁺ formed in the parameters' coordinates enters it four times. Near the rank floor
-    (S of 1e-8 and below) that product's terms reach 1e30 and cancel: its variances came out
-    negative, the offset's too, and a negative variance read as zero called a parameter the
-    record barely resolves known exactly. Both forms are also Gram matrices (F Fᵀ) here, so no
-    variance rounds below zero.
+    With A = V S⁻¹ / d over the `rank` kept directions (J's truncated pseudo-inverse without
+    its Uᵀ), the Gauss-Newton covariance is σ² A Aᵀ and the sandwich A (Uᵀ Ω U) Aᵀ: from
+    `estimate`'s block sums S enters once, where the product of (JᵀJ)⁺, Jᵀ Ω J and (JᵀJ)⁺ formed
+    in the parameters' coordinates enters it four times. Near the rank floor (S of 1e-8 and
+    below) that product's terms reach 1e30 and cancel: its variances came out negative, the
+    offset's too, and a negative variance read as zero called a parameter the record barely
+    resolves known exactly. `estimate_moments` turns a factor of the parameter-coordinate block
+    sums by S⁻¹, which costs cond eps as `estimate`'s U does. Both are Gram matrices (F Fᵀ), so
+    no variance rounds below zero.
     """
     d = np.where(norms > 0, norms, 1.0)
     rank, deficient = _identifiable(S, Vt, norms, p, rel)
@@ -536,10 +543,11 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
         pred = _long_prediction(run, layout, theta, jnp.asarray(un), s, x0, z0, dt)
         window = bandwidth_of(*_lag_sums(np.asarray(y), np.asarray(pred), np.asarray(mask)))
         del pred
-    R, blocks, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
-    # J's selected columns mapped by T are Q (R[:, index] T): the same singular values.
+    R, Rw, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
+    # J's selected columns mapped by T are Q (R[:, index] T): the same singular values; the
+    # block sums' factor maps alike.
     factor = np.asarray(R, np.float64)[:, index] @ T
-    blocks = T.T @ np.asarray(blocks, np.float64)[np.ix_(index, index)] @ T
+    blocks = np.asarray(Rw, np.float64)[:, index] @ T
     return estimate_moments(factor, blocks, float(ete), int(used.sum()), method=method, window=window, eps=eps)
 
 
