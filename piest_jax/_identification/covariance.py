@@ -207,10 +207,10 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     **Returns:** `(R (p, p), Rw (p, p), eTe)`: the triangular factor of the weighted rows'
     J = QR, by a QR of the factor so far stacked on each chunk's rows (so RᵀR = JᵀJ, with J's
     singular values to the accuracy of a QR of J, where JᵀJ itself would square its condition
-    number); the same factor of the overlapping block sums W_t = Σ of g_i = J_i e_i over the
-    `window` samples ending at t (every t >= window - 1), RwᵀRw = Σ_t W_t W_tᵀ, for the same
-    reason (`estimate_moments` turns them by S⁻¹, where Σ W Wᵀ would have lost cond² eps); and
-    eᵀe.
+    number); a triangular factor, likewise, of the overlapping block sums W_t = Σ of
+    g_i = J_i e_i over the `window` samples ending at t (every t >= window - 1), so
+    RwᵀRw = Σ_t W_t W_tᵀ, for the same reason (`estimate_moments` turns them by S⁻¹, where
+    Σ W Wᵀ would have lost cond² eps); and eᵀe.
     """
     p = theta.shape[0]
     T = u.shape[0]
@@ -326,7 +326,8 @@ def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=No
     if b is not None:
         # The block sums in the coordinates of J's left singular vectors, U = J V S⁻¹ / d, as
         # `_sandwich` takes them (where S is 0 the direction is beyond the rank and unused):
-        # turned as a factor, F Tᵀ, whose cancellation costs cond eps, not cond² eps.
+        # turned as a factor, F = blocks (S⁻¹ Vᵀ / d)ᵀ, whose cancellation costs cond·eps, not
+        # the cond²·eps of turning Σ W Wᵀ itself.
         inv = np.divide(1.0, S, out=np.zeros_like(S), where=S > 0)
         F = np.asarray(blocks, np.float64) @ (inv[:, None] * Vt / d).T
         blocks_u = F.T @ F
