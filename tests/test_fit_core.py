@@ -44,8 +44,8 @@ def assert_same_fit(a, b, rtol, atol):
 # Two solves of one objective that differ only in rounding (the order of sums, a compiled or an
 # op-by-op program) end where the loss stops decreasing in floating point: loss values place an
 # optimum only to about sqrt(eps) relative, so a parameter of two such ends may differ by 1e-9 while
-# their losses agree to the last digits (measured here: two starts 6.3e-10 apart in a threshold,
-# RMSE equal to 3e-17, and which start is best then depends on the CPU's instruction set).
+# their losses agree to the last digits (measured on an AVX-512 CPU: the same start, compiled and
+# op by op, ended 29 and 32 steps in, its thresholds 6.3e-10 apart and its RMSE equal to 3e-17).
 SQRT_EPS = float(np.sqrt(np.finfo(np.float64).eps))
 
 

@@ -193,7 +193,9 @@ def chunk_rows(run, layout: Layout, theta, s: Scales, x0, z0, dt):
 # Each parameter layout and record length compiles a large program (a scan of forward-mode
 # sensitivities and QR updates); a structure search meets many once each (`_bounded_jit.py`).
 @bounded_jit(2)
-def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, window: int, chunk: int):
+def moments(
+    run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, window: int, chunk: int, blocks: bool = True
+):
     """What the covariance needs from J, accumulated chunk by chunk in bounded memory.
 
     A `lax.scan` over chunks of the record carries the plays' (and lags') states and their
@@ -201,8 +203,9 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
     J are exact while only `chunk` of them exist at a time.
 
     **Arguments:** as [`jacobian`][], plus `y` (T,) in the data's units, `mask` (T,) the samples'
-    weights (0 leaves a sample out), `window` the Newey-West block length and `chunk` the chunk
-    length.
+    weights (0 leaves a sample out), `window` the Newey-West block length, `chunk` the chunk
+    length and `blocks` whether to accumulate the block sums' factor (Newey-West's; Gauss-Newton
+    needs none, and `Rw` then stays zero).
 
     **Returns:** `(R (p, p), Rw (p, p), eTe)`: the triangular factor of the weighted rows'
     J = QR, by a QR of the factor so far stacked on each chunk's rows (so RᵀR = JᵀJ, with J's
@@ -229,7 +232,8 @@ def moments(run, layout: Layout, theta, u, y, mask, s: Scales, x0, z0, dt, windo
         e = (yy - pred) * mm
         W, tail = block_sums(tail, (J * e[None, :]).T, ii, T)
         R = jnp.linalg.qr(jnp.concatenate([R, J.T]), mode="r")
-        Rw = jnp.linalg.qr(jnp.concatenate([Rw, W]), mode="r")
+        if blocks:
+            Rw = jnp.linalg.qr(jnp.concatenate([Rw, W]), mode="r")
         return (after, dafter, tail, R, Rw, ete + e @ e), None
 
     zero = jnp.zeros((p, p), theta.dtype)
@@ -289,11 +293,10 @@ def estimate(J, e, *, method: str = "newey-west", eps=None):
     b = bandwidth(e) if method == "newey-west" and N > p else None
     blocks = None
     if b is not None:
-        # The block sums of J's left singular vectors (J / d = U S Vᵀ) times the residuals: the
-        # meat in the coordinates where the sandwich divides by S once (see `_sandwich`).
+        # The block sums of J's left singular vectors (J / d = U S Vᵀ) times the residuals, in
+        # the coordinates where the sandwich divides by S once, as a factor (see `_sandwich`).
         cs = np.concatenate([np.zeros((1, U.shape[1])), np.cumsum(U * e[:, None], axis=0)])
-        W = cs[b:] - cs[:-b]
-        blocks = W.T @ W
+        blocks = np.linalg.qr(cs[b:] - cs[:-b], mode="r")
     return _sandwich(S, Vt, norms, N, p, float(e @ e), method, b, blocks, _floor(N, p, eps))
 
 
@@ -329,8 +332,7 @@ def estimate_moments(factor, blocks, ete, N: int, *, method: str, window, eps=No
         # turned as a factor, F = blocks (S⁻¹ Vᵀ / d)ᵀ, whose cancellation costs cond·eps, not
         # the cond²·eps of turning Σ W Wᵀ itself.
         inv = np.divide(1.0, S, out=np.zeros_like(S), where=S > 0)
-        F = np.asarray(blocks, np.float64) @ (inv[:, None] * Vt / d).T
-        blocks_u = F.T @ F
+        blocks_u = np.asarray(blocks, np.float64) @ (inv[:, None] * Vt / d).T
     return _sandwich(S, Vt, norms, N, p, float(ete), method, b, blocks_u, _floor(np.sqrt(N), p, eps))
 
 
@@ -375,8 +377,9 @@ def gram_deficient(G, N: int, eps=None):
 
 def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, rel):
     """The covariance from the scaled J's singular values `S` and right vectors `Vt` of `N`
-    samples, dropping those below `rel` times the largest; for Newey-West, `blocks` is Σ W Wᵀ
-    of the block sums of the residuals times J's left singular vectors U (J / d = U S Vᵀ).
+    samples, dropping those below `rel` times the largest; for Newey-West, `blocks` (k, p) is a
+    factor, blocksᵀ blocks = Σ W Wᵀ, of the block sums W of the residuals times J's left singular
+    vectors U (J / d = U S Vᵀ).
 
     With A = V S⁻¹ / d over the `rank` kept directions (J's truncated pseudo-inverse without
     its Uᵀ), the Gauss-Newton covariance is σ² A Aᵀ and the sandwich A (Uᵀ Ω U) Aᵀ: from
@@ -385,8 +388,8 @@ def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, rel):
     below) that product's terms reach 1e30 and cancel: its variances came out negative, the
     offset's too, and a negative variance read as zero called a parameter the record barely
     resolves known exactly. `estimate_moments` turns a factor of the parameter-coordinate block
-    sums by S⁻¹, which costs cond eps as `estimate`'s U does. Both are Gram matrices (F Fᵀ), so
-    no variance rounds below zero.
+    sums by S⁻¹, which costs cond eps as `estimate`'s U does. With the meat as a factor the
+    covariance is a Gram matrix (F Fᵀ), so no variance rounds below zero.
     """
     d = np.where(norms > 0, norms, 1.0)
     rank, deficient = _identifiable(S, Vt, norms, p, rel)
@@ -401,10 +404,8 @@ def _sandwich(S, Vt, norms, N, p, ete, method, b, blocks, rel):
     if method == "gauss-newton":
         cov = sigma2 * (A @ A.T)
     else:
-        meat = blocks[:rank, :rank] / b * N / (N - b + 1)
-        lam, Q = np.linalg.eigh(0.5 * (meat + meat.T))
-        F = A @ (Q * np.sqrt(np.maximum(lam, 0.0)))
-        cov = F @ F.T * N / dof
+        F = A @ blocks[:, :rank].T
+        cov = F @ F.T * (N / (b * (N - b + 1)) * N / dof)
         info["bandwidth"] = b
     cov = 0.5 * (cov + cov.T)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -544,7 +545,9 @@ def _long_record_fields(method, run, layout, theta, un, yn, mask, s, x0, z0, dt,
         pred = _long_prediction(run, layout, theta, jnp.asarray(un), s, x0, z0, dt)
         window = bandwidth_of(*_lag_sums(np.asarray(y), np.asarray(pred), np.asarray(mask)))
         del pred
-    R, Rw, ete = moments(run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk)
+    R, Rw, ete = moments(
+        run, layout, theta, jnp.asarray(un), y, m, s, x0, z0, dt, window, chunk, method == "newey-west"
+    )
     # J's selected columns mapped by T are Q (R[:, index] T): the same singular values; the
     # block sums' factor maps alike.
     factor = np.asarray(R, np.float64)[:, index] @ T
