@@ -19,8 +19,13 @@ amplitude, and each model's mean error there. Fitted against the cycle's squared
 relative to the largest (0 at rest, 1 at the largest loop), the slope is how far a model moves
 its level between a loop at rest and the largest one, beside how far the device moves its own.
 
+`aye_reverse` runs the Aye pair the other way (identify on the validation run, predict the
+identification run): a level that belongs to the runs, not to a model, shows as mean errors of
+opposite sign and like size in the two directions (`validation_mean_error`), whatever the model.
+`slow_lag_level` is how much of the fitted model's level on the other run its slowest lag sets.
+
 Writes experiments/results/predict_next_run.json.
-Run: python experiments/predict_next_run.py   (~4 min on 2 cores)
+Run: python experiments/predict_next_run.py   (~7 min on 2 cores)
 """
 
 import time
@@ -48,6 +53,11 @@ def aye_pair():
     return pj.load_dataset("piezo_aye2018_identification"), pj.load_dataset("piezo_aye2018_validation")
 
 
+def aye_reverse_pair():
+    ident, val = aye_pair()
+    return val, ident
+
+
 def fit_summary(rec, val) -> tuple[dict, np.ndarray]:
     """The summary, and the raw prediction of `val`."""
     t0 = time.perf_counter()
@@ -57,10 +67,22 @@ def fit_summary(rec, val) -> tuple[dict, np.ndarray]:
     keep = {k: d[k] for k in ("model", "rmse", "undetermined", "held_on_bounds", "creep", "std_errors") if k in d}
     keep["selection"] = d["selection"]["models"]
     keep.update(
-        {k: d[k] for k in ("validation_rmse", "validation_starts_at_rest", "validation_rmse_ic") if k in d},
+        {
+            k: d[k]
+            for k in (
+                "validation_rmse",
+                "validation_starts_at_rest",
+                "validation_rmse_ic",
+                "validation_outside_input_range",
+                "validation_inside_input_range",
+            )
+            if k in d
+        },
         seconds=secs,
     )
-    return keep, np.asarray(ident.validation.raw.prediction)
+    pred = np.asarray(ident.validation.raw.prediction)
+    keep["validation_mean_error"] = float(np.mean(pred - np.asarray(val.y)))
+    return keep, pred
 
 
 def diagnose_summary(rec, val) -> tuple[dict, np.ndarray]:
@@ -75,6 +97,9 @@ def diagnose_summary(rec, val) -> tuple[dict, np.ndarray]:
         "final_rmse": d["final_rmse"],
         "validation_final_rmse": v["final_rmse"],
         "validation_final_rmse_ic": v["final_rmse_ic"],
+        "validation_outside_input_range": v["outside_input_range"],
+        "validation_inside_input_range": v["inside_input_range"],
+        "validation_mean_error": float(np.mean(np.asarray(diagnosis.validation.final_prediction) - np.asarray(val.y))),
         "seconds": secs,
     }, np.asarray(diagnosis.validation.final_prediction)
 
@@ -93,18 +118,40 @@ def cycle_levels(val, predictions: dict) -> dict:
     out = {"half_range": half.tolist(), "measured_mean": [float(np.mean(y[c])) for c in cycles]}
     x = (half / half.max()) ** 2
     design = np.column_stack([np.ones_like(x), x])
-    out["slope_measured"] = float(np.linalg.lstsq(design, out["measured_mean"], rcond=None)[0][1])
+
+    def slope(means) -> float:
+        return float(np.linalg.lstsq(design, np.asarray(means), rcond=None)[0][1])
+
+    out["slope_measured"] = slope(out["measured_mean"])
     for name, pred in predictions.items():
         err = [float(np.mean(np.asarray(pred)[c] - y[c])) for c in cycles]
         out[f"{name}_mean_error"] = err
-        out[f"slope_{name}"] = float(np.linalg.lstsq(design, np.asarray(out["measured_mean"]) + err, rcond=None)[0][1])
+        out[f"slope_{name}"] = slope(np.asarray(out["measured_mean"]) + err)
     return out
+
+
+def slow_lag_level(fit: dict, rec, val) -> dict | None:
+    """What the fitted model's slowest lag adds to its level on `val` against `rec`: a lag much
+    slower than the input's cycles follows the run's mean input, so it moves the predicted level
+    by its weight times the difference of the two runs' mean inputs (the offset took up the rest
+    on `rec`)."""
+    creep = fit.get("creep")
+    if not creep:
+        return None
+    k = int(np.argmax(creep["time_constants"]))
+    w = float(creep["weights"][k])
+    return {
+        "time_constant": float(creep["time_constants"][k]),
+        "weight": w,
+        "level_shift": w * float(np.mean(val.u) - np.mean(rec.u)),
+    }
 
 
 def main() -> None:
     RESULTS.mkdir(exist_ok=True)
-    out = {"chandra_split": {"identify_before_s": SPLIT, "predict_until_s": END}, "aye": {}}
-    for name, (rec, val) in (("chandra_split", chandra_pair()), ("aye", aye_pair())):
+    out = {"chandra_split": {"identify_before_s": SPLIT, "predict_until_s": END}, "aye": {}, "aye_reverse": {}}
+    pairs = (("chandra_split", chandra_pair()), ("aye", aye_pair()), ("aye_reverse", aye_reverse_pair()))
+    for name, (rec, val) in pairs:
         out[name]["n_samples"] = [rec.n_samples, val.n_samples]
         out[name]["fit"], fit_pred = fit_summary(rec, val)
         print(name, "fit", {k: out[name]["fit"].get(k) for k in ("model", "validation_rmse_ic", "seconds")})
@@ -114,6 +161,10 @@ def main() -> None:
             levels = cycle_levels(val, {"fit": fit_pred, "diagnose": diagnose_pred})
             out[name]["cycle_levels"] = levels
             print(name, "level slopes", {k: v for k, v in levels.items() if k.startswith("slope")})
+        if name.startswith("aye"):
+            out[name]["input_mean"] = [float(np.mean(rec.u)), float(np.mean(val.u))]
+            out[name]["slow_lag_level"] = slow_lag_level(out[name]["fit"], rec, val)
+            print(name, "slow lag", out[name]["slow_lag_level"])
     pj.write_json(RESULTS / "predict_next_run.json", out)
 
 

@@ -241,8 +241,12 @@ def test_cli_writes_the_report(csv_files, tmp_path, capsys):
         "1",
     ]
     assert main(argv) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     rep = json.loads((out / "report.json").read_text())
+    # A validation input outside the identified range is noted, with the RMSEs inside it.
+    share = rep["validation"]["outside_input_range"]
+    assert ("samples have inputs outside the range" in captured.err) == (share > 0)
     # --json prints the report itself, the same text as the file.
     assert printed == (out / "report.json").read_text()
     for k in ("effects", "baseline_rmse", "final_rmse", "noise_std_estimate", "candidates", "where", "validation"):
@@ -351,6 +355,8 @@ def test_cli_report_is_the_diagnosis_json(csv_files, tmp_path):
         "baseline_rmse_offset_removed",
         "final_rmse_offset_removed",
         "effects_used",
+        "outside_input_range",
+        "inside_input_range",
         "data",
     ]
     assert rep == json.loads(json_text(expected))
@@ -367,6 +373,15 @@ def test_cli_report_is_the_diagnosis_json(csv_files, tmp_path):
     assert np.std(val.y - d.validation.baseline_prediction) == pytest.approx(
         d.validation.baseline_rmse_offset_removed, rel=1e-12
     )
+    # Where the validation input leaves the identification record's range, counted here.
+    outside = (val.u < rec.u.min()) | (val.u > rec.u.max())
+    assert d.validation.outside_input_range == pytest.approx(outside.mean(), abs=1e-15)
+    for name, pred in (
+        ("final_rmse", d.validation.final_prediction),
+        ("baseline_rmse", d.validation.baseline_prediction),
+    ):
+        inside = np.sqrt(np.mean((pred - val.y)[~outside] ** 2))
+        assert d.validation.inside_input_range[name] == pytest.approx(inside, rel=1e-12)
 
 
 def test_diagnosis_reads_as_its_report():

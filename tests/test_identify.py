@@ -62,6 +62,36 @@ def test_cli_fit_json_is_identify_to_json(tmp_path, capsys):
     assert alone == {k: v for k, v in written.items() if not k.startswith("valid")}
 
 
+@pytest.mark.parametrize("amplitude", [1.3, 0.8])
+def test_validation_outside_the_identified_input_range_is_reported(tmp_path, capsys, amplitude):
+    # A validation run driven further than the identification run: the share of its samples
+    # outside the identified input range, and the RMSEs over the others, counted here from the
+    # predictions reported; a note on stderr names it. Driven less far: nothing outside.
+    rec = _record(tmp_path / "d.csv", 300)
+    t = np.arange(240) * 0.005
+    u = amplitude * np.sin(2 * np.pi * 2 * t)
+    y = ref.play(u, R, u[0]) @ W + OFFSET
+    np.savetxt(tmp_path / "v.csv", np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    val = pj.load_record(tmp_path / "v.csv")
+    result = pj.identify(rec, val, model="pi", plays=3, key=jax.random.key(3), starts=2)
+    report = result.to_json()
+    outside = (val.u < rec.u.min()) | (val.u > rec.u.max())
+    assert outside.any() == (amplitude > 1)
+    assert report["validation_outside_input_range"] == pytest.approx(outside.mean(), abs=1e-15)
+    inside = report["validation_inside_input_range"]
+    v = result.validation
+    for key, pred in (("rmse", v.raw.prediction), ("rmse_ic", v.ic.prediction)):
+        assert inside[key] == pytest.approx(np.sqrt(np.mean((np.asarray(pred) - val.y)[~outside] ** 2)), rel=1e-12)
+    out = tmp_path / "out"
+    argv = ["fit", rec.source, "--model", "pi", "--plays", "3", "--validate", val.source, "--out", str(out), "--quiet"]
+    assert pj.run_cli([*argv, "--seed", "3", "--starts", "2"]) == 0
+    err = capsys.readouterr().err
+    assert ("samples have inputs outside the range the model was identified on" in err) == (amplitude > 1)
+    if amplitude > 1:
+        assert f"{100 * outside.mean():.3g} % of {val.source}'s samples" in err
+        assert f"validation_rmse_ic {inside['rmse_ic']:.4g}" in err
+
+
 def test_validation_reports_the_band_coverage(tmp_path):
     # White noise on a known 3-play model: the validation record's samples fall inside the raw
     # and the IC prediction's 95 % measurement bands about 95 % of the time; the bands are those

@@ -197,7 +197,7 @@ def _figure_calls():
     rec = pj.Record(t, u, y)
     mask = (t >= 0.2).astype(float)
     val = pj.DiagnosisValidation(
-        rec, 0.2, 0.02, 0.1, 0.01, 50.0, 95.0, 60.0, 96.0, {}, 0.01, 0.2, 0.02, ["delay"], 0.9 * y, y
+        rec, 0.2, 0.02, 0.1, 0.01, 50.0, 95.0, 60.0, 96.0, {}, 0.01, 0.2, 0.02, ["delay"], 0.0, {}, 0.9 * y, y
     )
     diagnosis = pj.Diagnosis(
         rec, ["delay"], 0.1, 0.01, 0.01, {}, {}, [], [], 0.1, 0.01, 1, [], 0.9 * y, y, validation=val

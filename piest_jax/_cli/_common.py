@@ -203,6 +203,30 @@ def note_loop(args, loop, positive_weights: bool) -> None:
     )
 
 
+def note_extrapolation(args, report: dict) -> None:
+    """Say when the validation record's input leaves the range the model was identified on,
+    from fit.json's keys (`validation_outside_input_range`, `input_range`,
+    `validation_inside_input_range`)."""
+    if "validation_outside_input_range" in report:
+        inside = {f"validation_{k}": v for k, v in report["validation_inside_input_range"].items()}
+        note_outside(args, report["validation_outside_input_range"], report["input_range"], inside)
+
+
+def note_outside(args, share: float, identified_range, inside: dict) -> None:
+    """The note for a validation record with a `share` of its samples' inputs outside
+    `identified_range` (min, max); `inside` names the RMSEs over the samples inside it."""
+    if not share > 0:
+        return
+    lo, hi = identified_range
+    where = " and ".join(f"{k} {v:.4g}" for k, v in inside.items() if v is not None)
+    note(
+        args,
+        f"{100 * share:.3g} % of {args.validate}'s samples have inputs outside the range the model was "
+        f"identified on ({lo:.4g} to {hi:.4g}), where it extrapolates"
+        + (f"; over the samples inside it: {where}" if where else ""),
+    )
+
+
 def print_notes(args) -> None:
     """The notes `note` kept, one line each."""
     for text in getattr(args, "_notes", ()):

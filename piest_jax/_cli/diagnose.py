@@ -5,7 +5,15 @@ from .._diagnosis.figure import diagnosis_figure
 from .._report import json_text
 from . import memory
 from . import output as _io
-from ._common import CLIError, add_output_options, add_record_options, note_loop, read_record, record_fields
+from ._common import (
+    CLIError,
+    add_output_options,
+    add_record_options,
+    note_loop,
+    note_outside,
+    read_record,
+    record_fields,
+)
 
 NAME = "diagnose"
 DESCRIPTION = """\
@@ -27,7 +35,10 @@ candidates shows on a terminal (not with --quiet or --json). With --json it prin
                    this record), and with --validate: validation {baseline_rmse,
                    final_rmse} (raw: the models from rest, transferable effects
                    only), {baseline,final}_rmse_ic (offset, play and creep initial
-                   states estimated on VAL.csv, nothing else), fit percentages
+                   states estimated on VAL.csv, nothing else), fit percentages,
+                   outside_input_range (the fraction of VAL.csv's samples whose input
+                   lies outside DATA.csv's range) and inside_input_range (the four
+                   RMSEs over the samples inside it)
   DIR/report.png   residuals and loops, before and after
   DIR/report.md    a short written report
 
@@ -107,6 +118,10 @@ def run(args) -> int:
         quiet=args.quiet or args.json,
     )
     note_loop(args, diagnosis.loop, False)
+    v = diagnosis.validation
+    if v is not None:
+        inside = {f"final_{k}": v.inside_input_range[f"final_{k}"] for k in ("rmse", "rmse_ic")}
+        note_outside(args, v.outside_input_range, (float(rec.u.min()), float(rec.u.max())), inside)
     rep = _report(diagnosis, args)
     fig = diagnosis_figure(diagnosis)
     written = [_io.write_json(out / "report.json", rep)]
@@ -173,6 +188,13 @@ def _markdown(d, data):
             f"{v.baseline_fit_percent:.1f} / {v.baseline_fit_percent_ic:.1f} | "
             f"{v.final_fit_percent:.1f} / {v.final_fit_percent_ic:.1f} |"
         )
+        if v.outside_input_range > 0 and v.outside_input_range < 1:
+            inside = v.inside_input_range
+            lines.append(
+                f"| RMSE, validation record, inputs inside the identified range (raw / initial conditions estimated) | "
+                f"{inside['baseline_rmse']:.4g} / {inside['baseline_rmse_ic']:.4g} | "
+                f"{inside['final_rmse']:.4g} / {inside['final_rmse_ic']:.4g} |"
+            )
     if d.record_specific_effects:
         lines += [
             "",
@@ -194,6 +216,14 @@ def _markdown(d, data):
             "everything else fixed.",
             "",
         ]
+        if v.outside_input_range > 0:
+            lo, hi = float(d.record.u.min()), float(d.record.u.max())
+            lines += [
+                f"{100 * v.outside_input_range:.3g} % of the validation record's samples have inputs "
+                f"outside the range the models were identified on ({lo:.4g} to {hi:.4g}); there every "
+                "term extrapolates, so the row of inputs inside that range is the fairer comparison.",
+                "",
+            ]
     for e, par in d.parameters.items():
         if par:
             lines.append(

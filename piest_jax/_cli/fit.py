@@ -21,6 +21,7 @@ from ._common import (
     add_record_options,
     finite_float,
     float_list,
+    note_extrapolation,
     note_loop,
     positive_float,
     positive_int,
@@ -49,7 +50,10 @@ z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. 
                        validation_band_coverage and validation_band_coverage_ic (the fraction
                        of VAL.csv's samples inside the raw and the IC prediction's 95 %
                        measurement band: the parameters' covariance through the model's
-                       Jacobian on VAL.csv, plus the residuals' variance; 0.95 if calibrated)
+                       Jacobian on VAL.csv, plus the residuals' variance; 0.95 if calibrated),
+                       validation_outside_input_range (the fraction of VAL.csv's samples whose
+                       input lies outside input_range, where the model extrapolates: a note
+                       says so) and validation_inside_input_range (rmse, rmse_ic over the others)
   DIR/fit.md           the parameters as a value +- std error table (also on stderr)
   DIR/fit.png          the measured and fitted loops and the residual over time, with the
                        95 % measurement band shaded
@@ -325,8 +329,10 @@ def run(args) -> int:
     f = result.fit
     assert isinstance(f, PIFit)  # the models that saturate are fitted by fit_saturating.run
     table = parameter_table(f)
+    report = {**result.to_json(), **record_fields(rec, args)}
+    note_extrapolation(args, report)
     written = [
-        _io.write_json(out / "fit.json", {**result.to_json(), **record_fields(rec, args)}),
+        _io.write_json(out / "fit.json", report),
         _io.write_text(out / "fit.md", _markdown(result, table)),
         _io.save_figure(
             fit_figure(

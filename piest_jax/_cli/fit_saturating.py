@@ -17,7 +17,7 @@ from .._identification.fit_preisach import PreisachFit
 from .._identification.identify import identify
 from . import memory
 from . import output as _io
-from ._common import CLIError, note_loop, positive_int, record_fields
+from ._common import CLIError, note_extrapolation, note_loop, positive_int, record_fields
 
 TERMS, GRID = identify_saturating.TERMS, identify_saturating.GRID
 
@@ -93,6 +93,7 @@ def write(args, result, out) -> int:
     assert isinstance(result.fit, GPIFit | PreisachFit)
     rec, val = result.record, None if result.validation is None else result.validation.record
     report = {**result.to_json(), **record_fields(rec, args)}
+    note_extrapolation(args, report)
     table = "" if result.fit.std_errors is None else parameter_table(result.fit)
     written = [
         _io.write_json(out / "fit.json", report),

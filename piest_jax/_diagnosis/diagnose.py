@@ -23,7 +23,7 @@ import numpy as np
 
 from .._blas import on_one_blas_thread
 from .._data.record import Record
-from .._identification.compare import fit_percent
+from .._identification.compare import extrapolation, fit_percent
 from .._identification.loop import loop_direction
 from .._identification.solvers import check_solver
 from .._progress import progress
@@ -570,7 +570,7 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnos
     checked = None
     if validation is not None:
         check_record(validation, validation=True)
-        checked = _validate(validation, sc, s, named)
+        checked = _validate(validation, sc, s, named, (float(np.min(rec.u)), float(np.max(rec.u))))
     return Diagnosis(
         record=rec,
         effects=named,
@@ -593,12 +593,15 @@ def diagnose(rec: Record, validation: Record | None = None, **kwargs) -> Diagnos
     )
 
 
-def _validate(validation: Record, sc: Scaling, s, named) -> DiagnosisValidation:
-    """Both models of a search on a second record, raw and with its initial conditions estimated."""
+def _validate(validation: Record, sc: Scaling, s, named, identified_range) -> DiagnosisValidation:
+    """Both models of a search on a second record, raw and with its initial conditions estimated
+    (`identified_range`: the identification record's input range)."""
     vb, rb = evaluate(validation, sc, s["model_base"], transferable_only=True)
     vf, rf = evaluate(validation, sc, s["model_final"], transferable_only=True)
     vbi, rbi, est_b = evaluate_ic(validation, sc, s["model_base"])
     vfi, rfi, est_f = evaluate_ic(validation, sc, s["model_final"])
+    predictions = dict(baseline_rmse=vb, final_rmse=vf, baseline_rmse_ic=vbi, final_rmse_ic=vfi)
+    ext = {k: extrapolation(validation.u, identified_range, validation.y, v) for k, v in predictions.items()}
     return DiagnosisValidation(
         record=validation,
         baseline_rmse=rb,
@@ -619,6 +622,8 @@ def _validate(validation: Record, sc: Scaling, s, named) -> DiagnosisValidation:
         baseline_rmse_offset_removed=float(np.std(validation.y - vb)),
         final_rmse_offset_removed=float(np.std(validation.y - vf)),
         effects_used=[e for e in named if not EFFECT[e].record_specific],
+        outside_input_range=ext["final_rmse"]["outside_input_range"],
+        inside_input_range={k: e["rmse_inside_input_range"] for k, e in ext.items()},
         baseline_prediction=vb,
         final_prediction=vf,
     )

@@ -35,6 +35,11 @@ class DiagnosisValidation:
     - `baseline_rmse_offset_removed`, `final_rmse_offset_removed`: the raw RMSEs with each
       model's mean residual removed (a sensor zero that moved between runs).
     - `effects_used`: the transferable effects, in the order named.
+    - `outside_input_range`: the fraction of the record's samples whose input lies outside the
+      identification record's input range, where every model extrapolates.
+    - `inside_input_range`: the four RMSEs above (`baseline_rmse`, `final_rmse`,
+      `baseline_rmse_ic`, `final_rmse_ic`) over the samples inside that range only (None for
+      one with no sample inside).
     - `baseline_prediction`, `final_prediction`: (T,) the raw predictions.
     """
 
@@ -52,6 +57,8 @@ class DiagnosisValidation:
     baseline_rmse_offset_removed: float
     final_rmse_offset_removed: float
     effects_used: list
+    outside_input_range: float
+    inside_input_range: dict
     baseline_prediction: np.ndarray
     final_prediction: np.ndarray
 

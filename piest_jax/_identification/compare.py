@@ -152,3 +152,27 @@ def fit_percent(y, prediction):
     y, prediction = jnp.asarray(y), jnp.asarray(prediction)
     spread = jnp.linalg.norm(y - jnp.mean(y))
     return 100.0 * (1.0 - jnp.linalg.norm(y - prediction) / jnp.where(spread > 0, spread, jnp.nan))
+
+
+def extrapolation(u, identified_range, y, prediction) -> dict:
+    """Where a second record's input leaves the input range a model was identified on.
+
+    A model has seen its output only over the identification record's inputs; beyond them
+    every term extrapolates (a polynomial most of all), so an error there says less about the
+    model than one inside.
+
+    **Arguments:** `u` (T,), the second record's input; `identified_range`, (min, max) of the
+    identification record's input; `y` (T,), the second record's output, and `prediction` (T,)
+    a model's prediction of it.
+
+    **Returns:** a dict: `outside_input_range`, the fraction of samples whose input lies outside
+    `identified_range`; `rmse_inside_input_range`, the prediction's RMSE over the others (None
+    when no sample is inside).
+    """
+    u, e = np.asarray(u, float), np.asarray(prediction, float) - np.asarray(y, float)
+    lo, hi = identified_range
+    inside = (u >= lo) & (u <= hi)
+    return {
+        "outside_input_range": float(1.0 - inside.mean()),
+        "rmse_inside_input_range": float(np.sqrt(np.mean(e[inside] ** 2))) if inside.any() else None,
+    }

@@ -23,7 +23,7 @@ from .._models.gpi import GeneralizedPI
 from .._models.preisach import Preisach
 from . import covariance as _cov
 from .band import PredictionBand, prediction_band
-from .compare import Comparison, compare
+from .compare import Comparison, compare, extrapolation
 from .fit import PIFit, fit_pi
 from .fit_gpi import GPIFit
 from .fit_preisach import PreisachFit
@@ -73,6 +73,18 @@ class Validation:
     state_convention: str
     raw_band: PredictionBand | None = None
     ic_band: PredictionBand | None = None
+
+    def extrapolation(self, identified_range) -> dict:
+        """fit.json's `validation_outside_input_range` (the fraction of the record's samples
+        whose input lies outside `identified_range`, the identification record's (min, max),
+        where the model extrapolates) and `validation_inside_input_range` (`rmse` and, with an
+        IC estimate, `rmse_ic` over the samples inside that range; None where none is)."""
+        u, y = self.record.u, self.record.y
+        raw = extrapolation(u, identified_range, y, self.raw.prediction)
+        inside = {"rmse": raw["rmse_inside_input_range"]}
+        if self.ic is not None:
+            inside["rmse_ic"] = extrapolation(u, identified_range, y, self.ic.prediction)["rmse_inside_input_range"]
+        return {"validation_outside_input_range": raw["outside_input_range"], "validation_inside_input_range": inside}
 
     @property
     def band_coverage(self) -> float | None:
@@ -170,6 +182,8 @@ class Identification:
             report["validation_rmse_ic"] = float(v.ic.rmse)
             # The fit percentage of the prediction with the record's initial conditions.
             report["validation_fit_percent"] = float(v.ic.fit_percent)
+        if v is not None:
+            report.update(v.extrapolation(report["input_range"]))
         if v is not None and v.raw_band is not None:
             report["validation_band_coverage"] = v.band_coverage
             if v.ic_band is not None:
