@@ -22,10 +22,11 @@ its level between a loop at rest and the largest one, beside how far the device 
 `aye_reverse` runs the Aye pair the other way (identify on the validation run, predict the
 identification run): a level that belongs to the runs, not to a model, shows as mean errors of
 opposite sign and like size in the two directions (`validation_mean_error`), whatever the model.
-`slow_lag_level` is how much of the fitted model's level on the other run its slowest lag sets.
+`slow_lag_level` is how much of the fitted model's level on the other run its slowest lag sets;
+`diagnose_first_effect` is the reverse diagnosis stopped after the first effect it names.
 
 Writes experiments/results/predict_next_run.json.
-Run: python experiments/predict_next_run.py   (~7 min on 2 cores)
+Run: python experiments/predict_next_run.py   (~8 min on 2 cores)
 """
 
 import time
@@ -65,6 +66,7 @@ def fit_summary(rec, val) -> tuple[dict, np.ndarray]:
     secs = time.perf_counter() - t0
     d = ident.to_json()
     keep = {k: d[k] for k in ("model", "rmse", "undetermined", "held_on_bounds", "creep", "std_errors") if k in d}
+    keep["play_weight_sum"] = float(np.sum(d["weights"]))
     keep["selection"] = d["selection"]["models"]
     keep.update(
         {
@@ -85,15 +87,16 @@ def fit_summary(rec, val) -> tuple[dict, np.ndarray]:
     return keep, pred
 
 
-def diagnose_summary(rec, val) -> tuple[dict, np.ndarray]:
-    """The summary, and the final model's raw prediction of `val`."""
+def diagnose_summary(rec, val, **options) -> tuple[dict, np.ndarray]:
+    """The summary, and the final model's raw prediction of `val` (`options` for `pj.diagnose`)."""
     t0 = time.perf_counter()
-    diagnosis = pj.diagnose(rec, val)
+    diagnosis = pj.diagnose(rec, val, **options)
     d = diagnosis.to_json()
     secs = time.perf_counter() - t0
     v = d["validation"]
     return {
         "effects": d["effects"],
+        "parameters": d["parameters"],
         "final_rmse": d["final_rmse"],
         "validation_final_rmse": v["final_rmse"],
         "validation_final_rmse_ic": v["final_rmse_ic"],
@@ -161,6 +164,10 @@ def main() -> None:
             levels = cycle_levels(val, {"fit": fit_pred, "diagnose": diagnose_pred})
             out[name]["cycle_levels"] = levels
             print(name, "level slopes", {k: v for k, v in levels.items() if k.startswith("slope")})
+        if name == "aye_reverse":
+            # The diagnosis stopped after its first effect, to see what the second one adds.
+            out[name]["diagnose_first_effect"], _ = diagnose_summary(rec, val, max_effects=1)
+            print(name, "diagnose, first effect", out[name]["diagnose_first_effect"])
         if name.startswith("aye"):
             out[name]["input_mean"] = [float(np.mean(rec.u)), float(np.mean(val.u))]
             out[name]["slow_lag_level"] = slow_lag_level(out[name]["fit"], rec, val)

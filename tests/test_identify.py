@@ -62,6 +62,18 @@ def test_cli_fit_json_is_identify_to_json(tmp_path, capsys):
     assert alone == {k: v for k, v in written.items() if not k.startswith("valid")}
 
 
+def test_extrapolation_counts_the_samples_outside_the_range():
+    # The range's ends count as inside; with no sample inside there is no RMSE to give.
+    from piest_jax._identification.compare import extrapolation
+
+    u, y = np.array([0.0, 0.5, 1.0, 1.5, -0.1]), np.zeros(5)
+    pred = np.array([1.0, 2.0, 2.0, 9.0, 9.0])
+    got = extrapolation(u, (0.0, 1.0), y, pred)
+    assert got["outside_input_range"] == 0.4
+    assert got["rmse_inside_input_range"] == pytest.approx(np.sqrt((1 + 4 + 4) / 3), rel=1e-15)
+    assert extrapolation(u, (2.0, 3.0), y, pred) == {"outside_input_range": 1.0, "rmse_inside_input_range": None}
+
+
 @pytest.mark.parametrize("amplitude", [1.3, 0.8])
 def test_validation_outside_the_identified_input_range_is_reported(tmp_path, capsys, amplitude):
     # A validation run driven further than the identification run: the share of its samples
@@ -86,7 +98,7 @@ def test_validation_outside_the_identified_input_range_is_reported(tmp_path, cap
     argv = ["fit", rec.source, "--model", "pi", "--plays", "3", "--validate", val.source, "--out", str(out), "--quiet"]
     assert pj.run_cli([*argv, "--seed", "3", "--starts", "2"]) == 0
     err = capsys.readouterr().err
-    assert ("samples have inputs outside the range the model was identified on" in err) == (amplitude > 1)
+    assert ("samples have inputs outside the identification record" in err) == (amplitude > 1)
     if amplitude > 1:
         assert f"{100 * outside.mean():.3g} % of {val.source}'s samples" in err
         assert f"validation_rmse_ic {inside['rmse_ic']:.4g}" in err

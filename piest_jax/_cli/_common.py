@@ -221,8 +221,8 @@ def note_outside(args, share: float, identified_range, inside: dict) -> None:
     where = " and ".join(f"{k} {v:.4g}" for k, v in inside.items() if v is not None)
     note(
         args,
-        f"{100 * share:.3g} % of {args.validate}'s samples have inputs outside the range the model was "
-        f"identified on ({lo:.4g} to {hi:.4g}), where it extrapolates"
+        f"{100 * share:.3g} % of {args.validate}'s samples have inputs outside the identification "
+        f"record's input range ({lo:.4g} to {hi:.4g}), where the model extrapolates"
         + (f"; over the samples inside it: {where}" if where else ""),
     )
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from .._data.columns import base_name
 from .._data.record import load_columns
+from .._identification.compare import outside_range
 from .._identification.compensate import admissible_states, feedforward
 from .._identification.figures import compensation_figure
 from .._models.composite import HysteresisModel
@@ -223,7 +224,7 @@ def _outside(path, u) -> dict:
     if not ok or not all(np.isfinite(rng)) or rng[0] > rng[1]:
         return {}  # the model file does not say (not written by `piest fit`, or an older one)
     lo, hi = float(rng[0]), float(rng[1])
-    frac = float(np.mean((u < lo) | (u > hi)))
+    frac = float(np.mean(outside_range(u, (lo, hi))))
     if frac > 0:
         print(
             f"piest compensate: note: {frac:.1%} of the feedforward input lies outside the input "

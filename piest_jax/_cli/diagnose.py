@@ -188,7 +188,7 @@ def _markdown(d, data):
             f"{v.baseline_fit_percent:.1f} / {v.baseline_fit_percent_ic:.1f} | "
             f"{v.final_fit_percent:.1f} / {v.final_fit_percent_ic:.1f} |"
         )
-        if v.outside_input_range > 0 and v.outside_input_range < 1:
+        if 0 < v.outside_input_range < 1:
             inside = v.inside_input_range
             lines.append(
                 f"| RMSE, validation record, inputs inside the identified range (raw / initial conditions estimated) | "
@@ -220,8 +220,13 @@ def _markdown(d, data):
             lo, hi = float(d.record.u.min()), float(d.record.u.max())
             lines += [
                 f"{100 * v.outside_input_range:.3g} % of the validation record's samples have inputs "
-                f"outside the range the models were identified on ({lo:.4g} to {hi:.4g}); there every "
-                "term extrapolates, so the row of inputs inside that range is the fairer comparison.",
+                f"outside the identification record's input range ({lo:.4g} to {hi:.4g}); there every "
+                "term extrapolates"
+                + (
+                    ", so the row of inputs inside that range is the fairer comparison."
+                    if v.outside_input_range < 1
+                    else "."
+                ),
                 "",
             ]
     for e, par in d.parameters.items():

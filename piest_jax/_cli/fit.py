@@ -53,7 +53,8 @@ z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. 
                        Jacobian on VAL.csv, plus the residuals' variance; 0.95 if calibrated),
                        validation_outside_input_range (the fraction of VAL.csv's samples whose
                        input lies outside input_range, where the model extrapolates: a note
-                       says so) and validation_inside_input_range (rmse, rmse_ic over the others)
+                       says so) and validation_inside_input_range (rmse, and rmse_ic where
+                       there is an IC estimate, over the others)
   DIR/fit.md           the parameters as a value +- std error table (also on stderr)
   DIR/fit.png          the measured and fitted loops and the residual over time, with the
                        95 % measurement band shaded

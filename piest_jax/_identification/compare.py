@@ -154,6 +154,13 @@ def fit_percent(y, prediction):
     return 100.0 * (1.0 - jnp.linalg.norm(y - prediction) / jnp.where(spread > 0, spread, jnp.nan))
 
 
+def outside_range(u, input_range) -> np.ndarray:
+    """(T,) booleans: where `u` lies outside `input_range` (min, max), its ends included inside."""
+    u = np.asarray(u, float)
+    lo, hi = input_range
+    return (u < lo) | (u > hi)
+
+
 def extrapolation(u, identified_range, y, prediction) -> dict:
     """Where a second record's input leaves the input range a model was identified on.
 
@@ -169,9 +176,8 @@ def extrapolation(u, identified_range, y, prediction) -> dict:
     `identified_range`; `rmse_inside_input_range`, the prediction's RMSE over the others (None
     when no sample is inside).
     """
-    u, e = np.asarray(u, float), np.asarray(prediction, float) - np.asarray(y, float)
-    lo, hi = identified_range
-    inside = (u >= lo) & (u <= hi)
+    e = np.asarray(prediction, float) - np.asarray(y, float)
+    inside = ~outside_range(u, identified_range)
     return {
         "outside_input_range": float(1.0 - inside.mean()),
         "rmse_inside_input_range": float(np.sqrt(np.mean(e[inside] ** 2))) if inside.any() else None,
