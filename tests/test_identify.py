@@ -68,10 +68,11 @@ def test_extrapolation_counts_the_samples_outside_the_range():
 
     u, y = np.array([0.0, 0.5, 1.0, 1.5, -0.1]), np.zeros(5)
     pred = np.array([1.0, 2.0, 2.0, 9.0, 9.0])
-    got = extrapolation(u, (0.0, 1.0), y, pred)
-    assert got["outside_input_range"] == 0.4
-    assert got["rmse_inside_input_range"] == pytest.approx(np.sqrt((1 + 4 + 4) / 3), rel=1e-15)
-    assert extrapolation(u, (2.0, 3.0), y, pred) == {"outside_input_range": 1.0, "rmse_inside_input_range": None}
+    outside, inside = extrapolation(u, (0.0, 1.0), y, a=pred, b=2 * pred)
+    assert outside == 0.4
+    assert inside["a"] == pytest.approx(np.sqrt((1 + 4 + 4) / 3), rel=1e-15)
+    assert inside["b"] == pytest.approx(2 * np.sqrt((1 + 4 + 4) / 3), rel=1e-15)
+    assert extrapolation(u, (2.0, 3.0), y, a=pred) == (1.0, {"a": None})
 
 
 @pytest.mark.parametrize("amplitude", [1.3, 0.8])

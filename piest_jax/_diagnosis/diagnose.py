@@ -600,8 +600,15 @@ def _validate(validation: Record, sc: Scaling, s, named, identified_range) -> Di
     vf, rf = evaluate(validation, sc, s["model_final"], transferable_only=True)
     vbi, rbi, est_b = evaluate_ic(validation, sc, s["model_base"])
     vfi, rfi, est_f = evaluate_ic(validation, sc, s["model_final"])
-    predictions = dict(baseline_rmse=vb, final_rmse=vf, baseline_rmse_ic=vbi, final_rmse_ic=vfi)
-    ext = {k: extrapolation(validation.u, identified_range, validation.y, v) for k, v in predictions.items()}
+    outside, inside = extrapolation(
+        validation.u,
+        identified_range,
+        validation.y,
+        baseline_rmse=vb,
+        final_rmse=vf,
+        baseline_rmse_ic=vbi,
+        final_rmse_ic=vfi,
+    )
     return DiagnosisValidation(
         record=validation,
         baseline_rmse=rb,
@@ -622,8 +629,8 @@ def _validate(validation: Record, sc: Scaling, s, named, identified_range) -> Di
         baseline_rmse_offset_removed=float(np.std(validation.y - vb)),
         final_rmse_offset_removed=float(np.std(validation.y - vf)),
         effects_used=[e for e in named if not EFFECT[e].record_specific],
-        outside_input_range=ext["final_rmse"]["outside_input_range"],
-        inside_input_range={k: e["rmse_inside_input_range"] for k, e in ext.items()},
+        outside_input_range=outside,
+        inside_input_range=inside,
         baseline_prediction=vb,
         final_prediction=vf,
     )

@@ -161,7 +161,7 @@ def outside_range(u, input_range) -> np.ndarray:
     return (u < lo) | (u > hi)
 
 
-def extrapolation(u, identified_range, y, prediction) -> dict:
+def extrapolation(u, identified_range, y, **predictions) -> tuple[float, dict]:
     """Where a second record's input leaves the input range a model was identified on.
 
     A model has seen its output only over the identification record's inputs; beyond them
@@ -169,16 +169,17 @@ def extrapolation(u, identified_range, y, prediction) -> dict:
     model than one inside.
 
     **Arguments:** `u` (T,), the second record's input; `identified_range`, (min, max) of the
-    identification record's input; `y` (T,), the second record's output, and `prediction` (T,)
-    a model's prediction of it.
+    identification record's input; `y` (T,), the second record's output; `predictions`, named
+    predictions (T,) of it.
 
-    **Returns:** a dict: `outside_input_range`, the fraction of samples whose input lies outside
-    `identified_range`; `rmse_inside_input_range`, the prediction's RMSE over the others (None
+    **Returns:** `(outside, inside)`: the fraction of samples whose input lies outside
+    `identified_range`, and for each name the prediction's RMSE over the other samples (None
     when no sample is inside).
     """
-    e = np.asarray(prediction, float) - np.asarray(y, float)
     inside = ~outside_range(u, identified_range)
-    return {
-        "outside_input_range": float(1.0 - inside.mean()),
-        "rmse_inside_input_range": float(np.sqrt(np.mean(e[inside] ** 2))) if inside.any() else None,
-    }
+    y = np.asarray(y, float)
+
+    def rmse(prediction):
+        return float(np.sqrt(np.mean((np.asarray(prediction, float) - y)[inside] ** 2))) if inside.any() else None
+
+    return float(1.0 - inside.mean()), {name: rmse(p) for name, p in predictions.items()}

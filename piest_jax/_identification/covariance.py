@@ -230,9 +230,9 @@ def moments(
         pred, after, J, dafter = rows(states, dstates, uu)
         J = J * mm[None, :]
         e = (yy - pred) * mm
-        W, tail = block_sums(tail, (J * e[None, :]).T, ii, T)
         R = jnp.linalg.qr(jnp.concatenate([R, J.T]), mode="r")
         if blocks:
+            W, tail = block_sums(tail, (J * e[None, :]).T, ii, T)
             Rw = jnp.linalg.qr(jnp.concatenate([Rw, W]), mode="r")
         return (after, dafter, tail, R, Rw, ete + e @ e), None
 

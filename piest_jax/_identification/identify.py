@@ -79,12 +79,11 @@ class Validation:
         whose input lies outside `identified_range`, the identification record's (min, max),
         where the model extrapolates) and `validation_inside_input_range` (`rmse` and, with an
         IC estimate, `rmse_ic` over the samples inside that range; None where none is)."""
-        u, y = self.record.u, self.record.y
-        raw = extrapolation(u, identified_range, y, self.raw.prediction)
-        inside = {"rmse": raw["rmse_inside_input_range"]}
+        predictions = {"rmse": self.raw.prediction}
         if self.ic is not None:
-            inside["rmse_ic"] = extrapolation(u, identified_range, y, self.ic.prediction)["rmse_inside_input_range"]
-        return {"validation_outside_input_range": raw["outside_input_range"], "validation_inside_input_range": inside}
+            predictions["rmse_ic"] = self.ic.prediction
+        outside, inside = extrapolation(self.record.u, identified_range, self.record.y, **predictions)
+        return {"validation_outside_input_range": outside, "validation_inside_input_range": inside}
 
     @property
     def band_coverage(self) -> float | None:
