@@ -83,6 +83,21 @@ def pytest_unconfigure(config):
         os.environ.pop("PIEST_COMPILE_CACHE", None)
 
 
+def pytest_collection_modifyitems(config, items):
+    """The files marked `long` first, then the others by their number of tests, each file whole.
+
+    The workers take one file at a time (`--dist loadfile`) as they finish the last. pytest-xdist
+    orders the files by their number of tests alone, which put the files of one long test (the
+    README's shell session, a minute of subprocesses) last, and one worker ran them alone for the
+    run's last minute; with the long files first, what is left at the end is short.
+    """
+    files: dict = {}
+    for item in items:
+        files.setdefault(item.path, []).append(item)
+    order = sorted(files.values(), key=lambda f: (f[0].get_closest_marker("long") is None, -len(f)))
+    items[:] = [item for f in order for item in f]
+
+
 @contextlib.contextmanager
 def optimized_compilation():
     """Compile with XLA's optimisation passes on inside the block (a module-scoped fixture's

@@ -18,6 +18,8 @@ import pytest
 import piest_jax as pj
 from piest_jax._cli import compile_cache
 
+pytestmark = pytest.mark.long
+
 _SIM = ["simulate", "--input", "triangle", "--thresholds", "0,0.5,1", "--weights", "1,0.5,0.25", "--quiet"]
 
 

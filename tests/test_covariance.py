@@ -12,6 +12,8 @@ from piest_jax._identification import covariance as _cov
 from piest_jax._identification import fit as _fit
 from piest_jax._identification.fit_data import Scales
 
+pytestmark = pytest.mark.long
+
 R, W = np.array([0.0, 0.4, 0.9]), np.array([1.0, 0.6, 0.5])
 
 

@@ -13,6 +13,8 @@ import reference as ref
 
 from piest_jax._cli import main
 
+pytestmark = pytest.mark.long
+
 # Keys that report how long something took on this machine, not a result.
 _TIMING = re.compile(r"^(wall|elapsed|timing|runtime)|_(wall|elapsed|seconds)(_s)?$|^(seconds|time_s|wall_s)$")
 

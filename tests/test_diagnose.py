@@ -17,6 +17,8 @@ from piest_jax._diagnosis import locate as _locate
 from piest_jax._diagnosis.effects import EFFECTS
 from piest_jax._report import json_text
 
+pytestmark = pytest.mark.long
+
 N_SAMPLES = 500
 
 

@@ -14,6 +14,8 @@ from reference import exact_play, exact_rank, exact_window_pe
 import piest_jax as pj
 from piest_jax._excitation.draw import draw_case
 
+pytestmark = pytest.mark.long
+
 
 def _condition(u, r, x0, window, stride=1):
     u = np.asarray(u, float)

@@ -11,6 +11,8 @@ import piest_jax as pj
 from piest_jax._identification import fit as _fit
 from piest_jax._identification.holdout import holdout_mask, padded_plays
 
+pytestmark = pytest.mark.long
+
 R_TRUE = np.array([0.0, 0.5, 1.2])
 W_TRUE = np.array([1.0, 0.6, 0.4])
 C_TRUE = 0.3

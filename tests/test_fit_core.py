@@ -13,6 +13,8 @@ from reference import pi as reference_pi  # a plain loop, independent of the lib
 
 import piest_jax as pj
 
+pytestmark = pytest.mark.long
+
 R_TRUE = np.array([0.0, 0.5, 1.2])
 W_TRUE = np.array([1.0, 0.6, 0.4])
 C_TRUE = 0.3

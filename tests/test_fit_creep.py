@@ -8,6 +8,8 @@ from test_fit import reference_pi
 
 import piest_jax as pj
 
+pytestmark = pytest.mark.long
+
 R, W = np.array([0.0, 0.5, 1.2]), np.array([1.0, 0.6, 0.4])
 TAU, C = np.array([0.4]), np.array([0.5])
 DT, T = 0.01, 800

@@ -6,6 +6,8 @@ import pytest
 
 import piest_jax as pj
 
+pytestmark = pytest.mark.long
+
 
 def record(T=400, amp=3.0, seed=0):
     t = np.linspace(0.0, 1.0, T)

@@ -36,6 +36,8 @@ from piest_jax._cli import simulate as simulate_cmd
 from piest_jax._diagnosis import diagnose as _diagnose
 from piest_jax._estimation import online as _online
 
+pytestmark = pytest.mark.long
+
 NAMES = [m.NAME for m in COMMANDS]
 
 

@@ -10,6 +10,8 @@ import piest_jax as pj
 from piest_jax._cli import main
 from piest_jax._identification.gpi_candidate import GATE, GATE_PLAYS, gpi_candidate, saturation_gate
 
+pytestmark = pytest.mark.long
+
 T = 1200
 
 

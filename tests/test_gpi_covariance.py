@@ -13,6 +13,8 @@ import piest_jax as pj
 from piest_jax._identification import covariance as _cov
 from piest_jax._identification import gpi_covariance
 
+pytestmark = pytest.mark.long
+
 jax.config.update("jax_enable_x64", True)
 
 

@@ -17,6 +17,8 @@ import time
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.long
+
 # Where each command's computation starts (module, attribute), and a job that runs for a while.
 _JOBS = {
     "simulate": (

@@ -29,6 +29,8 @@ from hypothesis import given
 import piest_jax as pj
 from piest_jax._operators.kernel import binding as K
 
+pytestmark = pytest.mark.long
+
 needs_kernel = pytest.mark.skipif(
     not K.available(),
     reason="the compiled play kernel is not built in this installation (no C++ compiler at "

@@ -11,6 +11,8 @@ import piest_jax as pj
 from piest_jax._identification import fit as _fit
 from piest_jax._identification import normal_equations as _ne
 
+pytestmark = pytest.mark.long
+
 R_TRUE = np.array([0.0, 0.2, 0.5, 0.8])
 W_TRUE = np.array([1.0, 0.5, 0.3, 0.2])
 

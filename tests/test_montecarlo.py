@@ -20,6 +20,8 @@ from piest_jax._excitation.draw import draw_case
 from piest_jax._excitation.families import FAMILIES
 from piest_jax._excitation.signals import triangle
 
+pytestmark = pytest.mark.long
+
 SETTINGS = dict(n_samples=600, n_plays=4, window=150, stride=15, dt=0.01)
 N_DRAWS, CHUNK, SEED = 168, 84, 11
 

@@ -12,6 +12,8 @@ import pytest
 
 from piest_jax._cli import main
 
+pytestmark = pytest.mark.long
+
 # A small map: 28 draws of 300 samples, 3 plays, in chunks of 14 (7 per device on two devices).
 ARGV = ["montecarlo", "--inputs", "28", "--samples", "300", "--plays", "3", "--seed", "5", "--chunk", "14"]
 # A hang (a process that never joins, a collective that never completes) fails the test, not the run.

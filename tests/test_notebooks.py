@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 from conftest import shared_compile_cache
 
+pytestmark = pytest.mark.long
+
 nbformat = pytest.importorskip("nbformat")
 pytest.importorskip("nbclient")
 pytest.importorskip("ipykernel")

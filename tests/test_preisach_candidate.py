@@ -10,6 +10,8 @@ import piest_jax as pj
 from piest_jax._cli import main
 from piest_jax._identification.preisach_candidate import GRID, preisach_candidate
 
+pytestmark = pytest.mark.long
+
 T = 3000
 NOISE = 0.003
 # A small search keeps the PI side quick; the Preisach candidate is the same whatever it is.

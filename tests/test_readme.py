@@ -31,6 +31,8 @@ import pytest
 
 from piest_jax._cli import COMMANDS, build_parser, main
 
+pytestmark = pytest.mark.long
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 # Pages whose blocks are excerpts of the package's code (with `...`), not a session to run.

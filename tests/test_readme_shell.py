@@ -4,7 +4,10 @@ each a minute of subprocess work, run on different test workers)."""
 
 import shlex
 
+import pytest
 from test_readme import SHELL, _documents, _marked, _run, code_blocks, piest_commands
+
+pytestmark = pytest.mark.long
 
 
 def shell_script(text: str) -> str:

@@ -15,6 +15,8 @@ from piest_jax._excitation import montecarlo as M
 from piest_jax._excitation import settle as S
 from piest_jax._excitation.draw import draw_case
 
+pytestmark = pytest.mark.long
+
 SETTINGS = dict(n_samples=300, n_plays=4, window=60, stride=15, dt=0.01)
 N_DRAWS, SEED = 60, 5
 
