@@ -209,8 +209,26 @@ def test_exact_condition_validation():
         pj.pe_margin(H, u, r, 5, tol="small")
     bad = H.copy()
     bad[3, 0] = np.nan
+    # Concrete values are checked before any work (a ValueError); traced ones inside the program.
+    for check in (pj.exact_condition, pj.pe_margin):
+        with pytest.raises(ValueError, match="`H` contains NaN"):
+            check(bad, u, r, 5)
+        with pytest.raises(ValueError, match="`u` contains NaN"):
+            check(H, np.where(np.arange(20) == 7, np.inf, u), r, 5)
+        with pytest.raises(ValueError, match="`r` must be finite and >= 0"):
+            check(H, u, np.array([-0.1, 0.2]), 5)
+    with pytest.raises(ValueError, match="`H` contains NaN"):
+        pj.event_rows(bad, u, r)
     with pytest.raises(eqx.EquinoxRuntimeError, match="NaN"):
-        pj.exact_condition(bad, u, r, 5)
+        eqx.filter_jit(lambda H: pj.exact_condition(H, u, r, 5).level)(bad)
+    with pytest.raises(eqx.EquinoxRuntimeError, match="`r` must be finite"):
+        eqx.filter_jit(lambda r: pj.pe_margin(H, u, r, 5))(jnp.array([0.0, -0.2]))
+    # Integer inputs are read as floats, as before.
+    ints = np.arange(20) % 7
+    H_int = np.asarray(pj.play(ints.astype(float), r, 0.0))
+    np.testing.assert_array_equal(
+        pj.exact_condition(H_int, ints, r, 5).level, pj.exact_condition(H_int, ints.astype(float), r, 5).level
+    )
 
 
 def test_exact_condition_under_jit_and_vmap():

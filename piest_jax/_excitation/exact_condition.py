@@ -19,10 +19,13 @@ from below by λ_min(DᵀD) / (4 L) for the increments D between any chosen samp
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jaxtyping import Array, Bool, Float
 
+from .. import _checks
 from .map_settings import numerical_tolerance
 from .pe import _window_args
 
@@ -35,25 +38,36 @@ def _tolerance(tol, dtype):
     return float(tol)
 
 
+def _like(x, dtype):
+    """`x` as a JAX array of `dtype`: concrete values through the host (`_checks.to_device`),
+    which compiles nothing, where `jnp.asarray` compiles a conversion for every new shape."""
+    if isinstance(x, jax.Array) and x.dtype == dtype:
+        return x
+    if _checks.is_concrete(x):
+        return _checks.to_device(np.asarray(x, dtype))
+    return jnp.asarray(x, dtype)
+
+
 def _inputs(H, u, r, window, stride):
-    H = jnp.asarray(H)
-    if not jnp.issubdtype(H.dtype, jnp.floating):
-        H = H.astype(float)
-    u = jnp.asarray(u, H.dtype)
-    r = jnp.asarray(r, H.dtype)
+    H = _checks.as_float_array(H, "H")
     if H.ndim != 2:
         raise ValueError(f"`H` must be the play outputs (T, n), got shape {H.shape}")
+    u, r = _like(u, H.dtype), _like(r, H.dtype)
     if u.shape != (H.shape[0],):
         raise ValueError(f"`u` must have shape ({H.shape[0]},) like H's rows, got {u.shape}")
     if r.shape != (H.shape[1],):
         raise ValueError(f"`r` must have shape ({H.shape[1]},), one threshold per play, got {r.shape}")
     _window_args(H.shape[0], window, stride)
-    H = eqx.error_if(H, ~jnp.all(jnp.isfinite(H)), "`H` contains NaN or inf")
-    u = eqx.error_if(u, ~jnp.all(jnp.isfinite(u)), "`u` contains NaN or inf")
-    r = eqx.error_if(r, jnp.any(r < 0) | ~jnp.all(jnp.isfinite(r)), "`r` must be finite and >= 0")
-    return H, u, r
+    H, u = _checks.finite(H, "H"), _checks.finite(u, "u")
+    if _checks.is_concrete(r):
+        rn = np.asarray(r)
+        if not (np.all(np.isfinite(rn)) and np.all(rn >= 0)):
+            raise ValueError(f"`r` must be finite and >= 0, got {rn}")
+        return H, u, r
+    return H, u, eqx.error_if(r, jnp.any(r < 0) | ~jnp.all(jnp.isfinite(r)), "`r` must be finite and >= 0")
 
 
+@eqx.filter_jit
 def _event_rows(H, u, r):
     # The play step is max(u − r, min(u + r, x)): the output sits on an envelope exactly when it
     # equals the very float that step computed, so these equalities are exact, not tolerances.
@@ -148,10 +162,22 @@ def exact_condition(H, u, r, window: int, *, stride: int = 1, tol=None) -> Exact
     """
     H, u, r = _inputs(H, u, r, window, stride)
     window, stride = int(window), int(stride)  # NumPy integers too, static under jit
-    tol = _tolerance(tol, H.dtype)
+    tol = jnp.asarray(_tolerance(tol, H.dtype), H.dtype)
+    return ExactCondition(*_holds(H, u, r, tol, window, stride), tol)
+
+
+# The comparisons after the compiled level and margin are compiled with them: run one by one they
+# would each compile a program of their own for every new shape.
+@eqx.filter_jit
+def _holds(H, u, r, tol, window: int, stride: int):
     level = _event_level(H, u, r, window, stride)
-    tol = jnp.asarray(tol, H.dtype)
-    return ExactCondition(level > tol, level, tol)
+    return level > tol, level
+
+
+@eqx.filter_jit
+def _bounded_margin(H, u, r, tol, window: int, stride: int):
+    ok = _event_level(H, u, r, window, stride) > tol
+    return jnp.where(ok, _margin(H, u, r, window, stride), 0.0)
 
 
 def _segment_ends(rho, du, moving):
@@ -205,5 +231,4 @@ def pe_margin(H, u, r, window: int, *, stride: int = 1, tol=None) -> Float[Array
     H, u, r = _inputs(H, u, r, window, stride)
     window, stride = int(window), int(stride)  # NumPy integers too, static under jit
     tol = _tolerance(tol, H.dtype)
-    ok = _event_level(H, u, r, window, stride) > tol
-    return jnp.where(ok, _margin(H, u, r, window, stride), 0.0)
+    return _bounded_margin(H, u, r, jnp.asarray(tol, H.dtype), window, stride)
