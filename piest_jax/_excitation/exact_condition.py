@@ -163,7 +163,8 @@ def exact_condition(H, u, r, window: int, *, stride: int = 1, tol=None) -> Exact
     H, u, r = _inputs(H, u, r, window, stride)
     window, stride = int(window), int(stride)  # NumPy integers too, static under jit
     tol = jnp.asarray(_tolerance(tol, H.dtype), H.dtype)
-    return ExactCondition(*_holds(H, u, r, tol, window, stride), tol)
+    holds, level = _holds(H, u, r, tol, window, stride)
+    return ExactCondition(holds, level, tol)
 
 
 # The comparisons after the compiled level and margin are compiled with them: run one by one they
