@@ -81,6 +81,7 @@ def lag_states(u: Array, a: Array, z0: Array, *, method: str = "auto") -> Array:
     raise ValueError(f"unknown lag method {method!r}; choose one of {LAG_METHODS}")
 
 
+@jax.jit  # one program, not one per operation
 def decays(log_time_constants: Array, dt) -> Array:
     """a_k = exp(-dt/τ_k) with τ_k = exp(θ_k): in (0, 1) for every finite θ."""
     return jnp.exp(-dt * jnp.exp(-log_time_constants))

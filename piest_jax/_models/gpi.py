@@ -27,6 +27,7 @@ free); [`GeneralizedPI.normalised`][piest_jax.GeneralizedPI.normalised] picks s_
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
@@ -51,6 +52,8 @@ def _positive_vector(x, name: str) -> Array:
     return eqx.error_if(x, ~jnp.all(jnp.isfinite(x) & (x > 0)), f"`{name}` must be positive")
 
 
+# Compiled as one program: run op by op, a new shape of `v` compiled each of its operations.
+@jax.jit
 def output_function(v: Array, log_amplitudes: Array, centres: Array, log_scales: Array, offset) -> Array:
     """g(v) = offset + Σ_k a_k tanh((v - c_k)/s_k) elementwise, with a = exp(log a), s = exp(log s).
 

@@ -33,6 +33,7 @@ The play bank is `_operators.play.play`, so the compiled kernel path is the same
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
@@ -214,9 +215,7 @@ class Preisach(eqx.Module):
 
     def __call__(self, u: SignalLike) -> Signal:
         """The model output (T,) for one input signal `u` (T,)."""
-        H = self.plays(u)
-        s = jnp.clip((H[:, :, None] - self.centres) / self.blur, -1.0, 1.0)
-        return self.offset + jnp.einsum("tkm,km->t", s, self.density)
+        return _relay_sum(self.plays(u), self.centres, self.blur, self.density, self.offset)
 
     def with_initial_states(self, play_states) -> "Preisach":
         """The same model with its plays started from `play_states` (scalar or (K,); None: at
@@ -305,6 +304,14 @@ class Preisach(eqx.Module):
         else:
             mu = eqx.error_if(mu, jnp.any(mu < 0), "a negative density cannot be inverted")
         return _inverse(eqx.tree_at(lambda m: m.density, self, mu), y, n_iter)
+
+
+# Compiled as one program: run op by op, a new record length compiled each of its operations.
+@jax.jit
+def _relay_sum(H, centres, blur, density, offset):
+    """offset + Σ_km density_km s_km with s_km the relays blurred over `blur` around `centres`."""
+    s = jnp.clip((H[:, :, None] - centres) / blur, -1.0, 1.0)
+    return offset + jnp.einsum("tkm,km->t", s, density)
 
 
 # Jitted at module level so that repeat calls with the same shapes reuse one compiled program (the
