@@ -6,6 +6,8 @@ Every draw comes from an explicit PRNG key and is unbatched: one key and a famil
 runs one vmap per family instead of evaluating every generator for every draw.
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -38,9 +40,15 @@ def draw_input(key: PRNGKeyArray, family, t: Signal, r_max) -> Signal:
     **Returns:** u (T,) in the dtype of `t`.
     """
     (index,) = family_indices((family,))
+    return _input(_checks.prng_key(key), index, _grid(t), r_max)
+
+
+# The draws are compiled as one program each (under an outer `jit` they are inlined): run op by
+# op, every new grid length compiled each of their dozen operations.
+@functools.partial(jax.jit, static_argnums=1)
+def _input(key, index: int, t, r_max):
     fam = FAMILY[FAMILIES[index]]
-    t = _grid(t)
-    v = jax.random.uniform(_checks.prng_key(key), (fam.n_uniforms(t.shape[0]),), t.dtype)
+    v = jax.random.uniform(key, (fam.n_uniforms(t.shape[0]),), t.dtype)
     r = jnp.atleast_1d(jnp.asarray(r_max, t.dtype))
     return fam.input(v, t, r).astype(t.dtype)
 
@@ -112,11 +120,14 @@ def draw_case(key: PRNGKeyArray, family, t: Signal, n_plays: int):
     weights (n,).
     """
     (index,) = family_indices((family,))
+    return _case(_checks.prng_key(key), index, _grid(t), _plays(n_plays))
+
+
+@functools.partial(jax.jit, static_argnums=(1, 3))
+def _case(key, index: int, t, n: int):
     fam = FAMILY[FAMILIES[index]]
-    t = _grid(t)
-    n = _plays(n_plays)
     m = fam.n_uniforms(t.shape[0])
-    v = jax.random.uniform(_checks.prng_key(key), (m + 3 * n + 2,), t.dtype)
+    v = jax.random.uniform(key, (m + 3 * n + 2,), t.dtype)
     r = _thresholds(v[m : m + n + 1], n)
     u = fam.input(v[:m], t, r).astype(t.dtype)
     x0 = _states(v[m + n + 1 : m + 2 * n + 2], r, u[0])
