@@ -223,6 +223,11 @@ def test_exact_condition_validation():
         eqx.filter_jit(lambda H: pj.exact_condition(H, u, r, 5).level)(bad)
     with pytest.raises(eqx.EquinoxRuntimeError, match="`r` must be finite"):
         eqx.filter_jit(lambda r: pj.pe_margin(H, u, r, 5))(jnp.array([0.0, -0.2]))
+    # Inputs given as lists, concrete or traced, are read as arrays.
+    levels = pj.exact_condition(H, u, r, 5).level
+    np.testing.assert_array_equal(pj.exact_condition(H, list(u), list(r), 5).level, levels)
+    traced = jax.jit(lambda H, u: pj.exact_condition(H, list(u), r, 5).level)(H, u)
+    np.testing.assert_array_equal(traced, levels)
     # Integer inputs are read as floats, as before.
     ints = np.arange(20) % 7
     H_int = np.asarray(pj.play(ints.astype(float), r, 0.0))

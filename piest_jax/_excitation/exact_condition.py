@@ -43,7 +43,7 @@ def _like(x, dtype):
     which compiles nothing, where `jnp.asarray` compiles a conversion for every new shape."""
     if isinstance(x, jax.Array) and x.dtype == dtype:
         return x
-    if _checks.is_concrete(x):
+    if all(_checks.is_concrete(leaf) for leaf in jax.tree.leaves(x)):  # a list may hold tracers
         return _checks.to_device(np.asarray(x, dtype))
     return jnp.asarray(x, dtype)
 
