@@ -215,13 +215,13 @@ def test_exact_condition_validation():
             check(bad, u, r, 5)
         with pytest.raises(ValueError, match="`u` contains NaN"):
             check(H, np.where(np.arange(20) == 7, np.inf, u), r, 5)
-        with pytest.raises(ValueError, match="`r` must be finite and >= 0"):
+        with pytest.raises(ValueError, match="`r` must be non-negative"):
             check(H, u, np.array([-0.1, 0.2]), 5)
     with pytest.raises(ValueError, match="`H` contains NaN"):
         pj.event_rows(bad, u, r)
     with pytest.raises(eqx.EquinoxRuntimeError, match="NaN"):
         eqx.filter_jit(lambda H: pj.exact_condition(H, u, r, 5).level)(bad)
-    with pytest.raises(eqx.EquinoxRuntimeError, match="`r` must be finite"):
+    with pytest.raises(eqx.EquinoxRuntimeError, match="`r` must be finite and non-negative"):
         eqx.filter_jit(lambda r: pj.pe_margin(H, u, r, 5))(jnp.array([0.0, -0.2]))
     # Inputs given as lists, concrete or traced, are read as arrays.
     levels = pj.exact_condition(H, u, r, 5).level

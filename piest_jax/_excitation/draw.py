@@ -43,8 +43,8 @@ def draw_input(key: PRNGKeyArray, family, t: Signal, r_max) -> Signal:
     return _input(_checks.prng_key(key), index, _grid(t), r_max)
 
 
-# The draws are compiled as one program each (under an outer `jit` they are inlined): run op by
-# op, every new grid length compiled each of their dozen operations.
+# The draws are compiled as one program each (under an outer `jit`, a call nested in its program):
+# run op by op, every new grid length compiled each of their dozen operations.
 @functools.partial(jax.jit, static_argnums=1)
 def _input(key, index: int, t, r_max):
     fam = FAMILY[FAMILIES[index]]

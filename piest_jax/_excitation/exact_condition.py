@@ -32,10 +32,10 @@ from .pe import _window_args
 
 def _tolerance(tol, dtype):
     if tol is None:
-        return numerical_tolerance(dtype)
+        return jnp.asarray(numerical_tolerance(dtype), dtype)
     if isinstance(tol, bool) or not isinstance(tol, int | float) or not 0 <= tol < 1:
         raise ValueError(f"`tol` must be a number in [0, 1) (a level λ_min / λ_max), got {tol!r}")
-    return float(tol)
+    return jnp.asarray(tol, dtype)
 
 
 def _like(x, dtype):
@@ -58,13 +58,7 @@ def _inputs(H, u, r, window, stride):
     if r.shape != (H.shape[1],):
         raise ValueError(f"`r` must have shape ({H.shape[1]},), one threshold per play, got {r.shape}")
     _window_args(H.shape[0], window, stride)
-    H, u = _checks.finite(H, "H"), _checks.finite(u, "u")
-    if _checks.is_concrete(r):
-        rn = np.asarray(r)
-        if not (np.all(np.isfinite(rn)) and np.all(rn >= 0)):
-            raise ValueError(f"`r` must be finite and >= 0, got {rn}")
-        return H, u, r
-    return H, u, eqx.error_if(r, jnp.any(r < 0) | ~jnp.all(jnp.isfinite(r)), "`r` must be finite and >= 0")
+    return _checks.finite(H, "H"), _checks.finite(u, "u"), _checks.thresholds(r, "r")
 
 
 @eqx.filter_jit
@@ -162,7 +156,7 @@ def exact_condition(H, u, r, window: int, *, stride: int = 1, tol=None) -> Exact
     """
     H, u, r = _inputs(H, u, r, window, stride)
     window, stride = int(window), int(stride)  # NumPy integers too, static under jit
-    tol = jnp.asarray(_tolerance(tol, H.dtype), H.dtype)
+    tol = _tolerance(tol, H.dtype)
     holds, level = _holds(H, u, r, tol, window, stride)
     return ExactCondition(holds, level, tol)
 
@@ -232,4 +226,4 @@ def pe_margin(H, u, r, window: int, *, stride: int = 1, tol=None) -> Float[Array
     H, u, r = _inputs(H, u, r, window, stride)
     window, stride = int(window), int(stride)  # NumPy integers too, static under jit
     tol = _tolerance(tol, H.dtype)
-    return _bounded_margin(H, u, r, jnp.asarray(tol, H.dtype), window, stride)
+    return _bounded_margin(H, u, r, tol, window, stride)
