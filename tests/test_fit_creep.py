@@ -50,6 +50,20 @@ def test_recovers_creep(fitted):
     np.testing.assert_allclose(f.model()(u), f(u), rtol=1e-12)
 
 
+def test_lag_weights_keep_the_sign_of_the_plays():
+    # A plant whose output relaxes back (negative creep): the default fit keeps every lag weight
+    # positive, so its static map increases (w_1 + sum c > 0) and it inverts; with signed
+    # weights the fit recovers the plant's negative lag.
+    u = signal()
+    y = reference_pi(u, R, W, u[0]) + reference_lags(u, TAU, DT, u[0]) @ (-0.6 * C) + 0.3
+    pos = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, key=jax.random.key(0))
+    assert np.all(np.asarray(pos.creep.weights) >= 0)
+    assert float(pos.weights[0] + np.sum(pos.creep.weights)) > 0
+    signed = pj.fit_pi(u, y, 3, n_lags=1, dt=DT, positive_weights=False, key=jax.random.key(0))
+    np.testing.assert_allclose(signed.creep.weights, -0.6 * C, rtol=1e-3)
+    assert float(signed.rmse) < 0.1 * float(pos.rmse)
+
+
 def test_plain_pi_cannot_explain_creep(fitted):
     u, y, f = fitted
     g = pj.fit_pi(u, y, 3, key=jax.random.key(0))

@@ -259,19 +259,33 @@ def test_sizes_against_a_small_machine(files, capsys, monkeypatch):
         _refused(capsys, argv, needle, files["dir"] / "o")
 
 
-def test_compensation_outside_the_fitted_range_is_reported(files, capsys):
+def test_compensation_outside_the_fitted_range_is_refused(files, capsys):
     model = files["dir"] / "fit.json"
     model.write_text(json.dumps(MODEL | {"input_range": [-0.5, 0.5]}))
     out = files["dir"] / "o"
-    code, _, err = _run(capsys, ["compensate", str(model), files["rec"], "--out", str(out)], stop=False)
+    # Far outside (beyond the 5% margin): refused in one line, nothing written.
+    code, o, err = _run(capsys, ["compensate", str(model), files["rec"], "--out", str(out)], stop=False)
+    assert (code, o) == (2, "") and err.count("\n") == 1, err
+    assert "leaves the input range the model was fitted on by more than 5% of its width" in err
+    assert "[-0.5, 0.5]" in err and "--extrapolate" in err
+    assert not out.exists() or not any(out.iterdir())
+    # Asked for: written, the fraction outside noted and recorded.
+    argv = ["compensate", str(model), files["rec"], "--out", str(out), "--extrapolate"]
+    code, _, err = _run(capsys, argv, stop=False)
     assert code == 0, err
     rep = json.loads((out / "compensate.json").read_text())
     u = np.loadtxt(out / "compensate.csv", delimiter=",", skiprows=1)[:, 2]
-    frac = float(np.mean(np.abs(u) > 0.5))
-    assert 0 < frac < 1
+    n_out = int(np.sum(np.abs(u) > 0.5))
+    assert 0 < n_out < u.size
     assert rep["fitted_input_range"] == [-0.5, 0.5]
-    assert rep["fraction_outside_fitted_range"] == pytest.approx(frac)
-    assert err.count("\n") == 1 and f"note: {frac:.1%} of the feedforward input lies outside" in err
+    assert rep["fraction_outside_fitted_range"] == pytest.approx(n_out / u.size)
+    assert err.count("\n") == 1 and f"note: {n_out} of {u.size} samples ({n_out / u.size:.1%})" in err
+    # Outside by less than the margin: written, with the note.
+    lo, hi = float(u.min()), float(u.max())
+    inner = [lo + 0.01 * (hi - lo), hi - 0.01 * (hi - lo)]
+    model.write_text(json.dumps(MODEL | {"input_range": inner}))
+    code, _, err = _run(capsys, ["compensate", str(model), files["rec"], "--out", str(out), "--force"], stop=False)
+    assert code == 0 and "of the feedforward input lie outside" in err, err
     # Inside the range: no note, fraction 0; a model file that does not say: no such keys.
     model.write_text(json.dumps(MODEL | {"input_range": [-10.0, 10.0]}))
     code, _, err = _run(capsys, ["compensate", str(model), files["rec"], "--out", str(out), "--force"], stop=False)

@@ -15,10 +15,8 @@ piest reproduce fig5 --out "$work/paper" --quiet
 piest montecarlo --inputs 2100 --samples 2000 --plays 6 --seed 0 --out "$work/pe-map" --quiet
 piest excite --thresholds 0,3.3333,6.6667 --amplitude 10 --samples 5000 --out "$work/excite" --quiet
 piest fit "$AYE_ID" --plays auto --validate "$AYE_VAL" --out "$work/fitted" --quiet
-# The compensation uses a plain PI fit: the default model's slow creep lag (weight -17, 9.4 s)
-# has a negative steady gain larger than the identity play's weight, and its feedforward drifts.
-piest fit "$AYE_ID" --model pi --plays auto --out "$work/fitted-pi" --quiet
-piest compensate "$work/fitted-pi/fit.json" "$AYE_VAL" --out "$work/ff" --quiet
+# The output the actuator produced on the validation run (its `desired` column is in another frame).
+piest compensate "$work/fitted/fit.json" "$AYE_VAL" --column y --out "$work/ff" --quiet
 piest diagnose "$AYE_ID" --validate "$AYE_VAL" --out "$work/diag" --quiet
 
 cp "$work/sim/loop.png" simulate.png

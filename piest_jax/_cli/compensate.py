@@ -33,6 +33,8 @@ Writes
                         the fraction of the input outside it (also noted on stderr; absent when
                         the model file does not say)
   DIR/compensate.png    desired output and feedforward input over time, and u against desired
+A feedforward that leaves the model's fitted input range (fit.json's `input_range`) by more
+than 5% of its width is refused (exit 2, nothing written) unless --extrapolate.
 The model must be invertible: r_1 = 0 and positive cumulative weights (fit without
 --signed-weights to guarantee it).
 A generalized PI (`piest fit --model gpi`) is inverted as u = P^-1[g^-1(desired)], g its
@@ -63,6 +65,11 @@ def add_arguments(p):
         default=None,
         metavar="X",
         help="the plays' state at the start (default: the model's, made admissible)",
+    )
+    p.add_argument(
+        "--extrapolate",
+        action="store_true",
+        help="write a feedforward that leaves the model's fitted input range (refused otherwise)",
     )
     add_output_options(p, "piest-compensate")
 
@@ -191,6 +198,7 @@ def _run_own_inverse(args, out, model, t, yd, col) -> int:
 
 def _write(args, out, t, yd, u, ym, fields) -> int:
     """compensate.csv, compensate.json (the model's `fields` among the summary) and the figure."""
+    outside = _outside(args.model, u, args.extrapolate)
     written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
     summary = {
         "model": str(args.model),
@@ -202,7 +210,7 @@ def _write(args, out, t, yd, u, ym, fields) -> int:
         "u_min": float(u.min()),
         "u_max": float(u.max()),
         "max_model_error": float(np.max(np.abs(ym - yd))),
-    } | _outside(args.model, u)
+    } | outside
     written.append(_io.write_json(out / "compensate.json", summary))
     written.append(_io.save_figure(compensation_figure(t, yd, u), out / "compensate.png", dpi=110))
     for p in written:
@@ -210,9 +218,15 @@ def _write(args, out, t, yd, u, ym, fields) -> int:
     return 0
 
 
-def _outside(path, u) -> dict:
+# A feedforward may leave the fitted input range by this share of the range's width before it is
+# refused: rounding and measurement noise in a desired output taken from a record stay inside it.
+RANGE_MARGIN = 0.05
+
+
+def _outside(path, u, extrapolate: bool) -> dict:
     """The fitted input range (fit.json's `input_range`) and the fraction of the feedforward
-    input outside it, where the model is extrapolated; a note on stderr when there is any."""
+    input outside it; a note on stderr when there is any, a `CLIError` when the input leaves the
+    range by more than `RANGE_MARGIN` of its width and `extrapolate` is False."""
     from .._identification.model_file import read_json
 
     rng = read_json(path).get("input_range")
@@ -224,12 +238,22 @@ def _outside(path, u) -> dict:
     if not ok or not all(np.isfinite(rng)) or rng[0] > rng[1]:
         return {}  # the model file does not say (not written by `piest fit`, or an older one)
     lo, hi = float(rng[0]), float(rng[1])
-    frac = float(np.mean(outside_range(u, (lo, hi))))
-    if frac > 0:
+    n_out = int(np.sum(outside_range(u, (lo, hi))))
+    frac = n_out / u.size
+    pct = f"{frac:.1%}" if frac >= 0.001 else "<0.1%"
+    share = f"{n_out} of {u.size} samples ({pct})" if n_out else ""
+    where = f"[{lo:.6g}, {hi:.6g}] (u from {u.min():.6g} to {u.max():.6g})"
+    margin = RANGE_MARGIN * (hi - lo)
+    if not extrapolate and (u.min() < lo - margin or u.max() > hi + margin):
+        raise CLIError(
+            f"{path}: the feedforward leaves the input range the model was fitted on by more than "
+            f"{RANGE_MARGIN:.0%} of its width: {share} lie outside {where}; ask for a desired "
+            "output the model reached when fitted, or pass --extrapolate"
+        )
+    if n_out:
         print(
-            f"piest compensate: note: {frac:.1%} of the feedforward input lies outside the input "
-            f"range the model was fitted on [{lo:.4g}, {hi:.4g}] (u from {u.min():.4g} to "
-            f"{u.max():.4g}); the model is extrapolated there",
+            f"piest compensate: note: {share} of the feedforward input lie outside the input range "
+            f"the model was fitted on {where}; the model is extrapolated there",
             file=sys.stderr,
         )
     return {"fitted_input_range": [lo, hi], "fraction_outside_fitted_range": frac}

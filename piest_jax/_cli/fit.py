@@ -74,8 +74,8 @@ of plays among --candidates, trying them from the smallest up and stopping after
 that do not improve the score (--criterion bic only with --model pi; a progress bar shows on a
 terminal unless --quiet). The validation record never takes part in choosing or fitting.
 --fit-from T leaves the samples before time T (a start-up transient, a rest) out of the fit
-and of its RMSE; they still drive the plays. Weights are kept positive (so the
-model can be inverted by `piest compensate`) unless --signed-weights, or unless the record's
+and of its RMSE; they still drive the plays. Weights, the creep lags' included, are kept
+positive (so the model can be inverted by `piest compensate`) unless --signed-weights, or unless the record's
 loop runs clockwise (the output leads the input, as an inverse PI does: positive weights would
 fit it with a straight line), which fit.json's loop (direction, score) and a note say.
 

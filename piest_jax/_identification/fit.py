@@ -208,9 +208,10 @@ def _user_units(p, r, w, x0, s, n):
     return thresholds, weights, offset, states
 
 
-def _lag_weights(params, lag_active=None):
-    """The lags' weights c_k, free in sign (see `fit_pi`'s `n_lags`)."""
-    c = params["lag_weights"]
+def _lag_weights(params, positive_weights, lag_active=None):
+    """The lags' weights c_k: c_k = softplus(θ_k) > 0 when `positive_weights`, else free in sign
+    (see `fit_pi`'s `n_lags`)."""
+    c = jax.nn.softplus(params["lag_weights"]) if positive_weights else params["lag_weights"]
     return c if lag_active is None else c * lag_active
 
 
@@ -221,7 +222,7 @@ def _predict(params, u, x0, positive_weights, r_bound=None, active=None, z0=None
     x0 = params.get("initial_states", x0)
     if "lag_theta" not in params:
         return run(u, r, w, params["offset"], x0)
-    c = _lag_weights(params, lag_active)
+    c = _lag_weights(params, positive_weights, lag_active)
     log_tau = lag_log_tau(params["lag_theta"], lag_base)
     return run(u, r, w, params["offset"], x0, log_tau, c, params.get("lag_states", z0))
 
@@ -377,6 +378,8 @@ def _initial_params(
         params["initial_states"] = x0
     if log_tau0 is not None:
         cw = sol[n:-1]
+        if positive_weights:
+            cw = _softplus_inv(jnp.maximum(cw, 1e-2 / n_on))
         theta = lag_theta(log_tau0, lag_base)
         if lag_active is not None:
             cw, theta = cw * lag_active, theta * lag_active
@@ -527,13 +530,11 @@ def fit_pi(
       BFGS fit stopped by `max_steps` far from its optimum can amplify that rounding), at the cost
       of `pad_plays` plays' work per step. Not with `thresholds0`.
     - `n_lags`: creep lags K (a [`Creep`][] of K first-order lags of u, time constants and weights
-      fitted with everything else; 2K more parameters, 3K with `fit_initial_states`). The creep
-      weights are free in sign whatever `positive_weights` says: a positive one is the creep of
-      the modified PI model (the output keeps moving the way the input last moved), a negative
-      one an output that relaxes back, as a measured piezo's can (`docs/fitting.md`); the
-      inverse needs only the identity play's weight plus the lags' present-input share to stay
-      positive, which [`feedforward`][] checks. The lags start at rest at u_0 unless
-      `fit_initial_states`.
+      fitted with everything else; 2K more parameters, 3K with `fit_initial_states`). With
+      `positive_weights` the creep weights are positive too (the output keeps moving the way the
+      input last moved), so the model's static map increases and its inverse is stable; without
+      it they are free in sign (an output that relaxes back). The lags start at rest at u_0
+      unless `fit_initial_states`.
     - `dt`: the sampling interval, the time unit of the creep's time constants.
     - `time_constants0`: (K,) starting time constants (default [`initial_time_constants`][]
       over the fitted stretch, each start at another place in the lags' bins); the starts after
@@ -677,6 +678,9 @@ def fit_pi(
         creep = Creep(tau, cw, dt, zs if fit_initial_states else None)
     fields = {}
     if covariance is not None:
+        if n_lags > 0:
+            # The covariance is taken in the natural parameters: the weights, not their softplus.
+            p = p | {"lag_weights": _lag_weights(p, positive_weights)}
         fields = _cov.fit_fields(
             covariance,
             run,
@@ -734,7 +738,7 @@ def _chosen(
     lags = None
     if n_lags > 0:
         # The lags' share of u_mid moves to the offset as the plays' does (`_user_units`).
-        cw = _lag_weights(p)[:n_lags] * s.y_half / s.u_half
+        cw = _lag_weights(p, positive_weights)[:n_lags] * s.y_half / s.u_half
         offset = offset - s.u_mid * jnp.sum(cw)
         tau = jnp.exp(lag_log_tau(p["lag_theta"], lag_base)[:n_lags]) * dt
         zs = s.u_mid + s.u_half * p["lag_states"][:n_lags] if "lag_states" in p else None

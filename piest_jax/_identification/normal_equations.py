@@ -87,7 +87,7 @@ def _chunk_residuals(params, states, data, scale, st: Settings):
         x, pred = lax.scan(step, x, u, unroll=UNROLL)
     else:
         a = decays(lag_log_tau(params["lag_theta"], st.lag_base), 1.0)
-        c = _fit._lag_weights(params, st.lag_active)
+        c = _fit._lag_weights(params, st.positive_weights, st.lag_active)
 
         def step(carry, ut):
             x, z = carry
