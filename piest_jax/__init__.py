@@ -103,7 +103,6 @@ _EXPORTS = {
     "evaluate_compensation": ("._identification.compensate", "evaluate_compensation"),
     "feedforward": ("._identification.compensate", "feedforward"),
     "linear_feedforward": ("._identification.compensate", "linear_feedforward"),
-    "PIModel": ("._identification.pi_model", "PIModel"),
     "Comparison": ("._identification.compare", "Comparison"),
     "compare": ("._identification.compare", "compare"),
     "fit_percent": ("._identification.compare", "fit_percent"),
@@ -124,6 +123,7 @@ _EXPORTS = {
     "prediction_band": ("._identification.band", "prediction_band"),
     "compensation_figure": ("._identification.figures", "compensation_figure"),
     # model components
+    "AbstractHysteresisModel": ("._models.model", "AbstractHysteresisModel"),
     "Creep": ("._models.creep", "Creep"),
     "HysteresisModel": ("._models.composite", "HysteresisModel"),
     "Preisach": ("._models.preisach", "Preisach"),
@@ -289,13 +289,13 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time `__getattr_
     from ._identification.model_size import select_plays as select_plays
     from ._identification.model_structure import ModelChoice as ModelChoice
     from ._identification.model_structure import select_model as select_model
-    from ._identification.pi_model import PIModel as PIModel
     from ._identification.preisach_candidate import PreisachCandidate as PreisachCandidate
     from ._identification.time_constants import initial_time_constants as initial_time_constants
     from ._identification.time_constants import shortest_time_constant as shortest_time_constant
     from ._models.composite import HysteresisModel as HysteresisModel
     from ._models.creep import Creep as Creep
     from ._models.gpi import GeneralizedPI as GeneralizedPI
+    from ._models.model import AbstractHysteresisModel as AbstractHysteresisModel
     from ._models.preisach import Preisach as Preisach
     from ._operators.figure import loop_figure as loop_figure
     from ._operators.kernel.binding import available as kernel_available  # noqa: F401

@@ -102,9 +102,7 @@ def test_not_invertible_model_is_rejected():
         pj.feedforward(pj.PIOperator([0.0, 1e300], [1e300, 1.0]), yd)
     with pytest.raises(ValueError, match="out of the range of float64: the inverse's weights"):
         pj.feedforward(pj.PIOperator([0.0, 1.0], [1e-300, 1e-300]), yd)
-    with pytest.raises(
-        ValueError, match="must be a PIFit, PIModel, HysteresisModel, PIOperator, GeneralizedPI or Preisach"
-    ):
+    with pytest.raises(ValueError, match="`model` must be a hysteresis model or a fit holding one, got str"):
         pj.feedforward("model", yd)
     with pytest.raises(ValueError, match="`desired` contains NaN"):
         pj.feedforward(pj.PIOperator(R, W), np.full(5, np.nan))

@@ -299,7 +299,7 @@ def test_cli_writes_null_std_errors_and_names_undetermined(tmp_path, capsys, mon
     assert "thresholds[2]" in rep["undetermined"] and rep["flagged"][2] is True
     assert "does not determine" in err and "thresholds[2]" in err and "| weights[0] |" in err
     assert "undetermined (rank)" in (out / "fit.md").read_text()
-    assert pj.load_model(out / "fit.json").thresholds.shape == (3,)
+    assert pj.load_model(out / "fit.json").pi.thresholds.shape == (3,)
 
 
 def test_a_long_float32_record_keeps_its_rank():

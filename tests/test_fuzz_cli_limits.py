@@ -236,8 +236,30 @@ def test_a_model_file_too_large_is_refused_unread(files, monkeypatch):
 
 def test_estimate_from_fit_refuses_booleans(files, capsys):
     fit = files["dir"] / "fit.json"
-    fit.write_text(json.dumps({"thresholds": [0.0, True]}))
-    _refused(capsys, ["estimate", files["rec"], "--from-fit", str(fit)], "no numeric `thresholds`", files["dir"] / "o")
+    fit.write_text(json.dumps({"thresholds": [0.0, True], "weights": [1.0, 1.0]}))
+    _refused(
+        capsys,
+        ["estimate", files["rec"], "--from-fit", str(fit)],
+        "`thresholds` holds true or false",
+        files["dir"] / "o",
+    )
+
+
+@pytest.mark.parametrize(
+    "content, needle",
+    [
+        # `piest estimate --from-fit` reads model files as every command does, naming the key.
+        ({"schema": 2, "structure": "pi"}, "schema 2 is newer"),
+        ({"schema": 1, "structure": "neural", "thresholds": [0.0]}, "unknown model structure 'neural'"),
+        ({"schema": 1, "structure": "pi", "thresholds": [0.0, 1.0]}, "missing weights, offset, initial_states"),
+        (MODEL | {"thresholds": [0.5, 0.0]}, "`thresholds` must be strictly increasing"),
+        (MODEL | {"weights": [1.0, "x"]}, "must be numbers"),
+    ],
+)
+def test_estimate_from_fit_reads_the_model_file(files, capsys, content, needle):
+    fit = files["dir"] / "fit.json"
+    fit.write_text(json.dumps(content))
+    _refused(capsys, ["estimate", files["rec"], "--from-fit", str(fit)], needle, files["dir"] / "o")
 
 
 def test_sizes_against_a_small_machine(files, capsys, monkeypatch):
@@ -351,3 +373,40 @@ def test_a_long_levenberg_marquardt_fit_is_sized_by_its_chunks():
     chunked = fit_bytes(10**7, 4, 40, chunked_past=2**16)
     assert 0.5 * 2**30 < chunked < 2 * 2**30 < fit_bytes(10**7, 4, 40) / 10
     assert fit_bytes(1000, 4, 40, chunked_past=2**16) == fit_bytes(1000, 4, 40)
+
+
+def test_compensation_is_clipped_or_slew_limited_on_request(files, capsys):
+    model = files["dir"] / "fit.json"
+    model.write_text(json.dumps(MODEL | {"input_range": [-0.5, 0.5]}))
+
+    def run(name, *extra):
+        out = files["dir"] / name
+        code, _, err = _run(capsys, ["compensate", str(model), files["rec"], "--out", str(out), *extra], stop=False)
+        rows = np.loadtxt(out / "compensate.csv", delimiter=",", skiprows=1) if code == 0 else None
+        rep = json.loads((out / "compensate.json").read_text()) if code == 0 else None
+        return code, err, rows, rep
+
+    code, err, free, _ = run("free", "--extrapolate")
+    assert code == 0, err
+    t, u_free = free[:, 0], free[:, 2]
+    # --clip holds it inside the fitted range, and the model column is the model's output for it.
+    code, err, rows, rep = run("clip", "--clip")
+    assert code == 0, err
+    np.testing.assert_array_equal(rows[:, 2], np.clip(u_free, -0.5, 0.5))
+    assert rep["n_clipped"] == int(np.sum(np.abs(u_free) > 0.5)) > 0
+    assert rep["fraction_outside_fitted_range"] == 0.0
+    # --max-slew refuses a faster feedforward, or with --clip limits it sample by sample.
+    rate = float(np.max(np.abs(np.diff(u_free) / np.diff(t))))
+    slew = str(0.5 * rate)
+    code, err, _, _ = run("slow", "--extrapolate", "--max-slew", slew)
+    assert code == 2 and f"faster than --max-slew {0.5 * rate:.6g}" in err and "--clip" in err
+    code, err, rows, rep = run("slow2", "--clip", "--max-slew", slew)
+    assert code == 0, err
+    assert np.max(np.abs(np.diff(rows[:, 2]) / np.diff(t))) <= 0.5 * rate * (1 + 1e-9)
+    assert rep["max_rate"] <= 0.5 * rate * (1 + 1e-9) and np.all(np.abs(rows[:, 2]) <= 0.5)
+    # A feedforward faster than anything the model was fitted on is noted.
+    model.write_text(json.dumps(MODEL | {"input_range": [-10.0, 10.0], "input_max_rate": 0.1 * rate}))
+    code, err, _, _ = run("noted")
+    assert code == 0 and "faster than anything in the record the model was fitted on" in err
+    code, err, _, _ = run("both", "--clip", "--extrapolate")
+    assert code == 2 and "either --clip or --extrapolate" in err

@@ -165,7 +165,7 @@ def _assert_close_tree(a, b, path="report"):
         (["--forgetting", "0.5"], "--forgetting is a setting of --estimator forgetting, not of --estimator rls"),
         (["--start", "-1"], "time >= 0"),
         (["--start", "99"], "fewer than 2 samples"),
-        (["--from-fit", "nope.json"], "cannot read"),
+        (["--from-fit", "nope.json"], "--from-fit: nope.json: no such file"),
         (["--window", "1000"], "--window"),
     ],
 )

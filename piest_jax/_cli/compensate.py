@@ -7,15 +7,11 @@ import numpy as np
 from .._data.columns import base_name
 from .._data.record import load_columns
 from .._identification.compare import outside_range
-from .._identification.compensate import admissible_states, feedforward
+from .._identification.compensate import feedforward, started
 from .._identification.figures import compensation_figure
-from .._models.composite import HysteresisModel
-from .._models.gpi import GeneralizedPI
-from .._models.preisach import Preisach
-from .._operators.pi import PIOperator
 from . import memory
 from . import output as _io
-from ._common import CLIError, add_output_options, columns_arg, finite_float
+from ._common import CLIError, add_output_options, columns_arg, finite_float, positive_float
 
 NAME = "compensate"
 DESCRIPTION = """\
@@ -34,7 +30,10 @@ Writes
                         the model file does not say)
   DIR/compensate.png    desired output and feedforward input over time, and u against desired
 A feedforward that leaves the model's fitted input range (fit.json's `input_range`) by more
-than 5% of its width is refused (exit 2, nothing written) unless --extrapolate.
+than 5% of its width, or that changes faster than --max-slew, is refused (exit 2, nothing
+written) unless --clip (held inside the range and the slew rate; compensate.json's n_clipped
+counts the samples changed) or --extrapolate; one faster than anything in the record the model
+was fitted on (fit.json's input_max_rate) is noted.
 The model must be invertible: r_1 = 0 and positive cumulative weights (fit without
 --signed-weights to guarantee it).
 A generalized PI (`piest fit --model gpi`) is inverted as u = P^-1[g^-1(desired)], g its
@@ -71,23 +70,19 @@ def add_arguments(p):
         action="store_true",
         help="write a feedforward that leaves the model's fitted input range (refused otherwise)",
     )
+    p.add_argument(
+        "--max-slew",
+        type=positive_float,
+        default=None,
+        metavar="RATE",
+        help="the fastest |du/dt| allowed (input units per time unit); a faster feedforward is refused",
+    )
+    p.add_argument(
+        "--clip",
+        action="store_true",
+        help="clip the feedforward into the fitted input range (and to --max-slew) instead of refusing it",
+    )
     add_output_options(p, "piest-compensate")
-
-
-def load_model(path):
-    """Thresholds, weights, offset, initial states and creep (or None) of a model file (`piest
-    fit`'s fit.json), read by the library's `load_model`, so errors name the file and the problem."""
-    from .._identification.model_file import load_model as read_model
-    from .._identification.pi_model import PIModel
-
-    model = read_model(path)
-    if isinstance(model, HysteresisModel):
-        op, creep, c = model.pi, model.creep, model.offset
-    elif isinstance(model, PIModel):
-        op, creep, c = model.operator(), None, model.offset
-    else:
-        raise CLIError(f"{path}: a {type(model).__name__} has no inverse here")
-    return (*(np.asarray(a) for a in (op.thresholds, op.weights, c, op.initial_states)), creep)
 
 
 def load_desired(path, column, columns=None):
@@ -106,16 +101,23 @@ def load_desired(path, column, columns=None):
     return cols["t"], cols[col], col
 
 
+def n_plays(model) -> int:
+    """The number of plays a model file's model runs (its PI part's, or a Preisach model's)."""
+    pi = getattr(model, "pi", None)
+    return pi.n_plays if pi is not None else model.shape[0]
+
+
 def run(args) -> int:
+    from .._identification.model_file import load_model
+
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    own = _own_inverse_model(args.model)
-    if own is None:
-        r, w, c, x0, creep = load_model(args.model)
+    if args.clip and args.extrapolate:
+        raise CLIError("give either --clip or --extrapolate, not both")
+    model = load_model(args.model)
     if args.columns is not None and args.column is not None:
         raise CLIError("give either --column or --columns, not both")
     t, yd, col = load_desired(args.desired, args.column, args.columns)
-    if own is not None:
-        return _run_own_inverse(args, out, own, t, yd, col)
+    creep = getattr(model, "creep", None)
     if creep is not None and len(t) > 1:
         dt = float(np.median(np.diff(t)))
         if not np.isclose(dt, creep.dt, rtol=1e-3):
@@ -123,77 +125,55 @@ def run(args) -> int:
                 f"{args.desired}: sampled every {dt:g}, but the model's creep was "
                 f"identified at dt = {creep.dt:g}; resample the desired output"
             )
+    n = n_plays(model)
     memory.require(
-        memory.stream_bytes(len(t), len(r)),
-        f"{args.model} ({len(r)} plays) on {args.desired} ({len(t)} samples)",
+        memory.stream_bytes(len(t), n),
+        f"{args.model} ({n} plays) on {args.desired} ({len(t)} samples)",
         "use a shorter desired output or a model with fewer plays",
     )
-    if args.initial_states is not None:
-        x0 = np.full(r.shape, args.initial_states)
+    x0 = None if args.initial_states is None else np.full(n, args.initial_states)
     try:
-        x0 = np.asarray(admissible_states(r, x0))
-        op = PIOperator(r, w, x0)
-        model = op if creep is None else HysteresisModel(op, creep, c)
-        u = np.asarray(feedforward(model, yd, offset=c))
+        model = started(model, x0)
+        u = np.asarray(feedforward(model, yd))
     except ValueError as e:
         # The desired output was checked on reading: what is left is the model (not invertible).
         raise CLIError(f"{args.model}: {' '.join(str(e).split())}") from None
-    ym = np.asarray(op(u)) + c
-    if creep is not None:
-        # The model's own run: its lags at rest at the first input, as the feedforward assumed
-        # unless the file states their states.
-        ym = np.asarray(model(u))
-        steady = float(np.sum(np.asarray(creep.weights)))
-        if float(w[0]) + steady <= 0:
-            print(
-                f"piest compensate: note: {args.model}: the creep's steady gain ({steady:.4g}) outweighs "
-                f"the first play's weight ({float(w[0]):.4g}), so the model's static map falls where only "
-                "that play moves; the feedforward can drift on a slowly varying desired output",
-                file=sys.stderr,
-            )
-    return _write(args, out, t, yd, u, ym, {"column": col, "initial_states": x0})
-
-
-def _own_inverse_model(path) -> GeneralizedPI | Preisach | None:
-    """The generalized PI or Preisach model in a model file, or None for a PI model."""
-    from .._identification.model_file import load_model as read_model
-
-    model = read_model(path)
-    return model if isinstance(model, GeneralizedPI | Preisach) else None
-
-
-def _run_own_inverse(args, out, model, t, yd, col) -> int:
-    """`piest compensate` for a model that carries its own inverse (gpi, preisach)."""
-    gpi = isinstance(model, GeneralizedPI)
-    n_plays = model.n_plays if gpi else model.shape[0]
-    memory.require(
-        memory.stream_bytes(len(t), n_plays),
-        f"{args.model} ({n_plays} plays) on {args.desired} ({len(t)} samples)",
-        "use a shorter desired output or a model with fewer plays",
-    )
-    if args.initial_states is not None:
-        x0 = np.full(n_plays, args.initial_states)
-        model = model.with_initial_states(admissible_states(model.pi.thresholds, x0) if gpi else x0)
-    try:
-        u = np.asarray(feedforward(model, yd))
-    except ValueError as e:
-        raise CLIError(f"{args.model}: {' '.join(str(e).split())}") from None
+    limits = _limits(args.model)
+    rate = _rate(t, u)
+    n_clipped = 0
+    if args.clip:
+        if limits["range"] is None and args.max_slew is None:
+            raise CLIError(f"{args.model}: states no fitted input range to clip to (give --max-slew, or a fit.json)")
+        limited = np.asarray(_limited(t, u, limits["range"], args.max_slew))
+        n_clipped = int(np.sum(limited != u))
+        u, rate = limited, _rate(t, limited)
+    elif args.max_slew is not None and rate > args.max_slew:
+        raise CLIError(
+            f"{args.model}: the feedforward changes at up to {rate:.6g} per time unit, faster than "
+            f"--max-slew {args.max_slew:.6g}; ask for a slower desired output, or pass --clip"
+        )
+    seen = limits["rate"]
+    if seen is not None and rate > 1.05 * seen:
+        print(
+            f"piest compensate: note: the feedforward changes at up to {rate:.6g} per time unit, "
+            f"faster than anything in the record the model was fitted on ({seen:.6g}); --max-slew "
+            "bounds it",
+            file=sys.stderr,
+        )
+    # The model's own run from the states the feedforward started from (a creep's lags at rest at
+    # the first input unless the file states theirs).
     ym = np.asarray(model(u))
-    states = model.pi.initial_states if gpi else model.initial_states
+    problem = model.inverse_problem()
+    if problem is not None:
+        print(f"piest compensate: note: {args.model}: {problem}", file=sys.stderr)
+    states = getattr(getattr(model, "pi", model), "initial_states")
     # None: a Preisach model's plays at rest at the first input.
-    return _write(
-        args,
-        out,
-        t,
-        yd,
-        u,
-        ym,
-        {
-            "structure": "gpi" if gpi else "preisach",
-            "column": col,
-            "initial_states": None if states is None else np.asarray(states),
-        },
-    )
+    fields = {"column": col, "initial_states": None if states is None else np.asarray(states), "max_rate": rate}
+    if args.clip:
+        fields["n_clipped"] = n_clipped
+    if model.structure in ("gpi", "preisach"):
+        fields["structure"] = model.structure
+    return _write(args, out, t, yd, u, ym, fields)
 
 
 def _write(args, out, t, yd, u, ym, fields) -> int:
@@ -210,12 +190,51 @@ def _write(args, out, t, yd, u, ym, fields) -> int:
         "u_min": float(u.min()),
         "u_max": float(u.max()),
         "max_model_error": float(np.max(np.abs(ym - yd))),
+        **{k: fields[k] for k in ("max_rate", "n_clipped") if k in fields},
     } | outside
     written.append(_io.write_json(out / "compensate.json", summary))
     written.append(_io.save_figure(compensation_figure(t, yd, u), out / "compensate.png", dpi=110))
     for p in written:
         print(p)
     return 0
+
+
+def _limits(path) -> dict:
+    """The fitted input `range` (fit.json's `input_range`) and the fastest input `rate` of the
+    record it was fitted on (`input_max_rate`); None where the model file does not say."""
+    from .._identification.model_file import read_json
+
+    keys = read_json(path)
+
+    def number(v):
+        return isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
+
+    rng = keys.get("input_range")
+    ok = isinstance(rng, list) and len(rng) == 2 and all(number(v) for v in rng) and rng[0] <= rng[1]
+    rate = keys.get("input_max_rate")
+    return {
+        "range": (float(rng[0]), float(rng[1])) if ok else None,
+        "rate": float(rate) if number(rate) and rate > 0 else None,
+    }
+
+
+def _rate(t, u) -> float:
+    """The fastest |du/dt| of a signal."""
+    return float(np.max(np.abs(np.diff(u) / np.diff(t)))) if len(u) > 1 else 0.0
+
+
+def _limited(t, u, rng, max_slew):
+    """`u` held inside `rng` (lo, hi) and, sample by sample, to at most `max_slew` per time unit
+    from the sample before (either None: no such limit)."""
+    lo, hi = (-np.inf, np.inf) if rng is None else rng
+    out = np.empty_like(u)
+    prev = None
+    for i, v in enumerate(u):
+        if prev is not None and max_slew is not None:
+            step = max_slew * (t[i] - t[i - 1])
+            v = min(max(v, prev - step), prev + step)
+        out[i] = prev = min(max(v, lo), hi)
+    return out
 
 
 # A feedforward may leave the fitted input range by this share of the range's width before it is
@@ -227,17 +246,10 @@ def _outside(path, u, extrapolate: bool) -> dict:
     """The fitted input range (fit.json's `input_range`) and the fraction of the feedforward
     input outside it; a note on stderr when there is any, a `CLIError` when the input leaves the
     range by more than `RANGE_MARGIN` of its width and `extrapolate` is False."""
-    from .._identification.model_file import read_json
-
-    rng = read_json(path).get("input_range")
-    ok = (
-        isinstance(rng, list)
-        and len(rng) == 2
-        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in rng)
-    )
-    if not ok or not all(np.isfinite(rng)) or rng[0] > rng[1]:
+    rng = _limits(path)["range"]
+    if rng is None:
         return {}  # the model file does not say (not written by `piest fit`, or an older one)
-    lo, hi = float(rng[0]), float(rng[1])
+    lo, hi = rng
     n_out = int(np.sum(outside_range(u, (lo, hi))))
     frac = n_out / u.size
     pct = f"{frac:.1%}" if frac >= 0.001 else "<0.1%"
@@ -248,7 +260,7 @@ def _outside(path, u, extrapolate: bool) -> dict:
         raise CLIError(
             f"{path}: the feedforward leaves the input range the model was fitted on by more than "
             f"{RANGE_MARGIN:.0%} of its width: {share} lie outside {where}; ask for a desired "
-            "output the model reached when fitted, or pass --extrapolate"
+            "output the model reached when fitted, or pass --clip or --extrapolate"
         )
     if n_out:
         print(

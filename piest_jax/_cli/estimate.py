@@ -96,23 +96,16 @@ def _thresholds(args, rec):
             raise CLIError("--thresholds must start at 0 and increase strictly, e.g. 0,1,2")
         return r, None
     if args.from_fit is not None:
-        from .._identification.model_file import read_json
+        from .._identification.model_file import load_model
 
         try:
-            model = read_json(args.from_fit)
-        except (OSError, ValueError) as e:
-            raise CLIError(f"--from-fit: cannot read a JSON model ({e})") from None
-        try:
-            if any(isinstance(v, bool) for k in ("thresholds", "initial_states") for v in model.get(k) or []):
-                raise ValueError
-            r = np.asarray(model["thresholds"], float)
-            x0 = model.get("initial_states")
-            x0 = None if x0 is None else np.asarray(x0, float)
-        except (KeyError, TypeError, ValueError, AttributeError):
-            raise CLIError(f"--from-fit {args.from_fit}: no numeric `thresholds` in it") from None
-        if r.ndim != 1 or r.size < 1 or not np.all(np.isfinite(r)) or (x0 is not None and x0.shape != r.shape):
-            raise CLIError(f"--from-fit {args.from_fit}: `thresholds` and `initial_states` do not match")
-        return r, x0
+            model = load_model(args.from_fit)
+        except ValueError as e:
+            raise CLIError(f"--from-fit: {' '.join(str(e).split())}") from None
+        pi = getattr(model, "pi", None)
+        if pi is None:
+            raise CLIError(f"--from-fit {args.from_fit}: a {model.structure} model has no PI thresholds to estimate")
+        return np.asarray(pi.thresholds, float), np.asarray(pi.initial_states, float)
     half = 0.5 * (rec.u_max - rec.u_min)
     return np.arange(args.plays) * half / args.plays, None
 

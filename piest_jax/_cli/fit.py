@@ -41,7 +41,8 @@ z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. 
                        initial_states when fitted; absent for plain PI),
                        rmse (over the fitted samples), the solver's result, plays flagged as not
                        determined, std_errors (by parameter name; null when undetermined),
-                       covariance (method, parameter_names, matrix), undetermined (names), the
+                       covariance (method, parameter_names, matrix), undetermined (names),
+                       invertible (and inverse_problem when not, also noted on stderr), the
                        selection's candidates, scores and rejected candidates, and with
                        --validate: validation_rmse (raw: the model run on VAL.csv from the
                        states named in validation_initial_states), validation_starts_at_rest,
@@ -373,6 +374,11 @@ def run(args) -> int:
             f"piest fit: note: {args.validate} does not start at rest, so the raw "
             "validation_rmse depends on the unknown states it starts from; "
             "validation_rmse_ic estimates them",
+            file=sys.stderr,
+        )
+    if not report["invertible"]:
+        print(
+            f"piest fit: note: the model has no stable inverse for `piest compensate`: {report['inverse_problem']}",
             file=sys.stderr,
         )
     for path in written:

@@ -26,7 +26,9 @@ Run a Prandtl-Ishlinskii operator y = sum_j w_j H_{r_j}[u] on an input and write
   DIR/loop.png       the y-u loop and the play outputs over time
   DIR/simulate.json  the operator, the input description and summary numbers
 The defaults are the paper's Fig. 5 setting: u = 10 sin(2 pi 5 t), t in [0, 1] s, dt = 1 ms,
-thresholds (0, 10/3, 20/3), weights (1, 3, 5).
+thresholds (0, 10/3, 20/3), weights (1, 3, 5). --model MODEL.json runs the model in a model
+file (`piest fit`'s fit.json, `piest diagnose`'s model.json, `save_model`'s) instead, from its
+own states; simulate.csv then holds its plays' outputs.
 
 example:  piest simulate --input triangle --amplitude 5 --thresholds 0,1,2,3 --out sim"""
 
@@ -62,9 +64,10 @@ def add_arguments(p):
     p.add_argument(
         "--initial-states",
         type=float_list,
-        default=[0.0],
+        default=None,
         help="the plays' initial states: one value for all, or one per play (default 0)",
     )
+    p.add_argument("--model", metavar="MODEL.json", help="run the model in this model file instead of a PI operator")
     add_record_options(p)
     add_output_options(p, "piest-simulate")
 
@@ -154,16 +157,42 @@ def _operator(args):
         w = np.asarray(args.weights)
     if len(w) != len(r):
         raise CLIError(f"{len(w)} weights for {len(r)} thresholds")
-    x0 = np.asarray(args.initial_states)
+    x0 = np.asarray([0.0] if args.initial_states is None else args.initial_states)
     if len(x0) not in (1, len(r)):
         raise CLIError(f"{len(x0)} initial states for {len(r)} thresholds; give 1 or {len(r)}")
     return PIOperator(r, w, x0 if len(x0) > 1 else x0[0])
 
 
+def _model(args):
+    """The model of --model, its PI part's operator (a Preisach model's plays as one with unit
+    weights) and its summary keys; refuses the operator options it would ignore."""
+    from .._identification.model_file import load_model
+
+    for name in ("thresholds", "plays", "r_max", "weights", "initial_states"):
+        if getattr(args, name) is not None:
+            raise CLIError(f"--{name.replace('_', '-')} describes a PI operator; --model runs {args.model} as it is")
+    model = load_model(args.model)
+    pi = getattr(model, "pi", None)
+    if pi is None:  # a Preisach model: its plays have the half-widths as thresholds
+        x0 = 0.0 if model.initial_states is None else model.initial_states
+        pi = PIOperator(model.half_widths, np.ones(model.shape[0]), x0)
+    return model, pi, {"model": str(args.model), "structure": model.structure}
+
+
 def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    op = _operator(args)
+    model = None
+    if args.model is not None:
+        model, op, keys = _model(args)
+    else:
+        op = _operator(args)
     t, u, desc = _input(args)
+    creep = getattr(model, "creep", None)
+    if creep is not None and len(t) > 1 and not np.isclose(float(np.median(np.diff(t))), creep.dt, rtol=1e-3):
+        raise CLIError(
+            f"the input is sampled every {float(np.median(np.diff(t))):g}, but the model's creep was "
+            f"identified at dt = {creep.dt:g}; give --dt {creep.dt:g}"
+        )
     if len(t) * op.n_plays > MAX_VALUES:
         raise CLIError(
             f"{len(t)} samples x {op.n_plays} plays is more than the {MAX_VALUES:.0e} values "
@@ -172,8 +201,11 @@ def run(args) -> int:
     memory.require(
         memory.bank_bytes(len(t), op.n_plays), f"{len(t)} samples x {op.n_plays} plays", "use fewer plays or samples"
     )
+    if model is not None and getattr(model, "pi", None) is None and model.initial_states is None:
+        # A Preisach model's plays start relaxed at the first input.
+        op = PIOperator(op.thresholds, op.weights, u[0])
     H = np.asarray(op.regressor(u))
-    y = np.asarray(op(u))
+    y = np.asarray(op(u) if model is None else model(u))
     for name, v in (("input u", u), ("output y", y), ("play outputs", H)):
         # ptp catches both inf and a range too wide for float64 (which the plot cannot draw).
         with np.errstate(over="ignore", invalid="ignore"):
@@ -186,10 +218,9 @@ def run(args) -> int:
     cols = {"t": t, "u": u, "y": y} | {f"x_{j + 1}": H[:, j] for j in range(H.shape[1])}
     written = [_io.write_csv(out / "simulate.csv", cols)]
     written.append(_io.save_figure(loop_figure(t, u, y, H, op.thresholds), out / "loop.png", dpi=120))
+    operator = {"thresholds": op.thresholds, "weights": op.weights, "initial_states": op.initial_states}
     summary = {
-        "thresholds": op.thresholds,
-        "weights": op.weights,
-        "initial_states": op.initial_states,
+        **(operator if model is None else keys),
         "input": desc,
         "n_samples": len(t),
         "y_min": float(y.min()),

@@ -22,8 +22,8 @@ import optimistix as optx
 from .. import _checks
 from .._custom_types import Scalar, Signal
 from .._models.composite import HysteresisModel
-from .._models.gpi import GeneralizedPI
-from .._models.preisach import Preisach
+from .._models.model import AbstractHysteresisModel
+from .._operators.pi import PIOperator
 
 
 class Comparison(eqx.Module):
@@ -44,15 +44,22 @@ class Comparison(eqx.Module):
     prediction: Signal | np.ndarray
     rmse: Scalar | float
     fit_percent: Scalar
-    model: HysteresisModel | GeneralizedPI | Preisach
+    model: AbstractHysteresisModel
 
 
-def _as_model(model) -> HysteresisModel:
-    if isinstance(model, HysteresisModel):
+def as_model(model) -> AbstractHysteresisModel:
+    """`model` itself, the model a fit result holds, or a [`PIOperator`][] as a model (offset 0).
+    `ValueError` for anything else."""
+    if isinstance(model, PIOperator):
+        return HysteresisModel(model)
+    if isinstance(model, AbstractHysteresisModel):
         return model
-    if hasattr(model, "model") and callable(model.model):
-        return model.model()
-    raise ValueError(f"`model` must be a HysteresisModel or a fit result (PIFit), got {type(model).__name__}")
+    held = getattr(model, "model", None)
+    if callable(held) and not isinstance(held, AbstractHysteresisModel):
+        held = held()
+    if isinstance(held, AbstractHysteresisModel):
+        return held
+    raise ValueError(f"`model` must be a hysteresis model or a fit holding one, got {type(model).__name__}")
 
 
 def _admissible(theta, r, u0):
@@ -110,7 +117,9 @@ def compare(
 
     **Arguments:**
 
-    - `model`: a [`HysteresisModel`][] or a [`PIFit`][] (its `model()`).
+    - `model`: a hysteresis model (a [`HysteresisModel`][], [`GeneralizedPI`][piest_jax.GeneralizedPI]
+      or [`Preisach`][piest_jax.Preisach]) or a fit holding one; initial conditions are estimated
+      for a [`HysteresisModel`][] only.
     - `u`, `y`: the record's input and output (T,) each; or `u` a `Record` and `y` None.
     - `estimate_initial`: estimate the output offset and the plays' (admissible) and lags'
       initial states on this record (True), or run the model as it is (False: its stated states,
@@ -126,14 +135,19 @@ def compare(
     if not _checks.is_whole(max_steps) or max_steps < 1:
         raise ValueError(f"`max_steps` must be a positive whole number, got {max_steps!r}")
     max_steps = int(max_steps)  # optimistix takes Python integers only
-    m = _as_model(model)
+    m = as_model(model)
     u = _checks.finite(_checks.signal(u, "u"), "u")
     y = _checks.finite(_checks.signal(y, "y"), "y")
     if u.shape != y.shape:
         raise ValueError(f"`u` has {u.shape[0]} samples but `y` has {y.shape[0]}")
-    dtype = jnp.result_type(u, y, m.pi.weights)
+    dtype = jnp.result_type(u, y, *jax.tree.leaves(eqx.filter(m, eqx.is_inexact_array)))
     u, y = u.astype(dtype), y.astype(dtype)
     if estimate_initial:
+        if not isinstance(m, HysteresisModel):
+            raise ValueError(
+                f"initial conditions are estimated for PI and PI + creep models; compare a "
+                f"{type(m).__name__} with estimate_initial=False"
+            )
         theta = _estimate(m, u, y, max_steps, rtol, atol)
         m = _with_ic(m, theta, u[0])
     pred = m(u)

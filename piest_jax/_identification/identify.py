@@ -166,6 +166,10 @@ class Identification:
             }
         report.update(input_extent(rec, self.mask))
         report["positive_weights"] = self.positive_weights
+        problem = model.inverse_problem()
+        report["invertible"] = problem is None
+        if problem is not None:
+            report["inverse_problem"] = problem
         if self.loop is not None:
             report["loop"] = self.loop.to_json()
         if self.fit_from is not None:
@@ -610,10 +614,13 @@ def _validate(fit: PIFit, record, val, initial_states, fit_initial_states) -> Va
 
 def input_extent(record: Record, mask) -> dict:
     """fit.json's `input_half_range`, `input_range` (where the model has seen data: `piest
-    compensate` reports inputs outside it) and `n_fitted_samples`, for any fitted model."""
+    compensate` refuses inputs far outside it), `input_max_rate` (the fastest |du/dt| in the
+    record) and `n_fitted_samples`, for any fitted model."""
+    u, t = np.asarray(record.u, np.float64), np.asarray(record.t, np.float64)
     return {
-        "input_half_range": 0.5 * float(np.ptp(record.u)),
-        "input_range": [float(record.u.min()), float(record.u.max())],
+        "input_half_range": 0.5 * float(np.ptp(u)),
+        "input_range": [float(u.min()), float(u.max())],
+        "input_max_rate": float(np.max(np.abs(np.diff(u) / np.diff(t)))) if len(u) > 1 else 0.0,
         "n_fitted_samples": record.n_samples if mask is None else int(mask.sum()),
     }
 

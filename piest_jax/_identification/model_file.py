@@ -26,7 +26,6 @@ from .._report import write_json
 from .fit import PIFit
 from .fit_gpi import GPIFit
 from .fit_preisach import PreisachFit
-from .pi_model import PIModel
 
 SCHEMA = 1
 
@@ -52,7 +51,7 @@ def register_structure(name: str, types, to_keys, from_keys) -> None:
 def model_keys(model) -> dict:
     """The JSON object [`save_model`][] writes for `model`: schema, structure, parameters.
 
-    **Arguments:** `model`, of a registered structure (a [`PIModel`][], [`PIFit`][],
+    **Arguments:** `model`, of a registered structure (a [`PIFit`][],
     [`PIOperator`][], [`HysteresisModel`][], [`GeneralizedPI`][piest_jax.GeneralizedPI] or
     [`Preisach`][piest_jax.Preisach]; a [`GPIFit`][piest_jax.GPIFit] or
     [`PreisachFit`][piest_jax.PreisachFit] saves its model).
@@ -80,7 +79,7 @@ def model_from_keys(keys, source: str = "<model>"):
 
     **Arguments:** `keys`, the decoded JSON object; `source`, how error messages name it.
 
-    **Returns:** the model (a [`PIModel`][] for `"structure": "pi"`). Raises [`DataError`][]
+    **Returns:** the model (a [`HysteresisModel`][] for `"structure": "pi"` and `"pi+creep"`). Raises [`DataError`][]
     naming `source` and the problem: not an object, a schema newer than this version reads, an
     unknown structure, or a parameter that is missing, not a number, not finite or of the
     wrong length.
@@ -106,8 +105,8 @@ def model_from_keys(keys, source: str = "<model>"):
 def save_model(path, model) -> Path:
     """Write a model as a JSON model file that [`load_model`][] reads back.
 
-    **Arguments:** `path`, the destination (its folder is created); `model`, a [`PIModel`][],
-    a [`PIFit`][] (its model part), a [`PIOperator`][] (offset 0), a [`HysteresisModel`][], a
+    **Arguments:** `path`, the destination (its folder is created); `model`, a [`PIFit`][]
+    (its model part), a [`PIOperator`][] (offset 0), a [`HysteresisModel`][], a
     [`GeneralizedPI`][piest_jax.GeneralizedPI] or a [`Preisach`][piest_jax.Preisach] (or the
     fit holding one).
 
@@ -127,8 +126,10 @@ def load_model(path):
     **Arguments:** `path`, the file.
 
     **Returns:** the model, callable on an input: `load_model("fit.json")(u)` is the fitted
-    model's output (a [`PIModel`][] for a PI fit). Raises [`DataError`][] (a `ValueError`)
-    naming the file and the problem.
+    model's output (a [`HysteresisModel`][] for a PI or PI + creep fit). Model files hold
+    float64 numbers; the model's arrays take JAX's precision (float64 with `jax_enable_x64`, as
+    the `piest` commands run). Raises [`DataError`][] (a `ValueError`) naming the file and the
+    problem.
     """
     return model_from_keys(read_json(path), str(Path(path)))
 
@@ -183,20 +184,23 @@ def _no_booleans(d: dict, keys, source: str) -> None:
 
 
 def _pi_keys(model) -> dict:
+    if isinstance(model, PIFit):
+        model = model.model()
     if isinstance(model, PIOperator):
-        model = PIModel(model.thresholds, model.weights, 0.0, model.initial_states)
-    if isinstance(model, HysteresisModel):
-        model = PIModel(model.pi.thresholds, model.pi.weights, model.offset, model.pi.initial_states)
+        model = HysteresisModel(model)
     return {
-        "thresholds": np.asarray(model.thresholds, np.float64),
-        "weights": np.asarray(model.weights, np.float64),
+        "thresholds": np.asarray(model.pi.thresholds, np.float64),
+        "weights": np.asarray(model.pi.weights, np.float64),
         "offset": np.asarray(model.offset, np.float64),
-        "initial_states": np.asarray(model.initial_states, np.float64),
+        "initial_states": np.asarray(model.pi.initial_states, np.float64),
     }
 
 
-def _pi_from_keys(d: dict, source: str) -> PIModel:
-    missing = [k for k in ("thresholds", "weights") if k not in d]
+def _pi_from_keys(d: dict, source: str) -> HysteresisModel:
+    # PI files with a schema are written whole by `save_model`; older ones may lack the last two.
+    whole = "schema" in d and d.get("structure", "pi") in ("pi", "pi+creep")
+    required = ("thresholds", "weights") + (("offset", "initial_states") if whole else ())
+    missing = [k for k in required if k not in d]
     if missing:
         raise DataError(f"{source}: missing {', '.join(missing)} (is it a `piest fit` fit.json?)")
     _no_booleans(d, ("thresholds", "weights", "offset", "initial_states"), source)
@@ -216,12 +220,12 @@ def _pi_from_keys(d: dict, source: str) -> PIModel:
     if not all(np.all(np.isfinite(a)) for a in (r, w, c, x0)):
         raise DataError(f"{source}: thresholds, weights, offset and initial_states must be finite")
     try:
-        return PIModel(r, w, c, x0)
+        return HysteresisModel(PIOperator(r, w, x0), None, c)
     except ValueError as e:
         raise DataError(f"{source}: {e}") from None
 
 
-register_structure("pi", (PIModel, PIFit, PIOperator, HysteresisModel), _pi_keys, _pi_from_keys)
+register_structure("pi", (PIFit, PIOperator, HysteresisModel), _pi_keys, _pi_from_keys)
 
 
 # --- PI + creep (a bank of first-order lags of the input) ------------------------------------
@@ -256,7 +260,7 @@ def _creep_from_keys(d: dict, source: str) -> HysteresisModel:
             float(cr["dt"]),
             None if z0 is None else np.asarray(z0, float),
         )
-        return HysteresisModel(pi.operator(), creep, pi.offset, float(cr["dt"]))
+        return HysteresisModel(pi.pi, creep, pi.offset, float(cr["dt"]))
     except (TypeError, ValueError) as e:
         raise DataError(f"{source}: unusable creep ({' '.join(str(e).split())})") from None
 
@@ -293,7 +297,7 @@ def _gpi_from_keys(d: dict, source: str) -> GeneralizedPI:
         a, c, s = (np.asarray(g[k], dtype=float) for k in ("amplitudes", "centres", "scales"))
         if not all(np.all(np.isfinite(v)) for v in (a, c, s)):
             raise ValueError("amplitudes, centres and scales must be finite")
-        return GeneralizedPI(pi.operator(), a, c, s, pi.offset)
+        return GeneralizedPI(pi.pi, a, c, s, pi.offset)
     except (TypeError, ValueError) as e:
         raise DataError(f"{source}: unusable output_function ({' '.join(str(e).split())})") from None
 

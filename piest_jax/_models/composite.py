@@ -1,8 +1,8 @@
 """The composite model y = PI[u] + C[u] + offset: a PI operator, an optional creep, an offset.
 
-One definition used by fitting, validation, compensation and the Python API. The PI part is a
-[`PIOperator`][] (the one play recurrence of the operators) and the creep part a [`Creep`][] bank
-of first-order lags of the input; without creep the model is the plain PI model.
+One definition used by fitting, validation, compensation, model files and the Python API. The PI
+part is a [`PIOperator`][] (the one play recurrence of the operators) and the creep part a
+[`Creep`][] bank of first-order lags of the input; without creep the model is the plain PI model.
 """
 
 import equinox as eqx
@@ -12,10 +12,13 @@ import numpy as np
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
 from .._operators.pi import PIOperator
-from .creep import Creep
+from .._operators.play import play_step
+from .composite_inverse import creep_inverse
+from .creep import Creep, lag_step
+from .model import AbstractHysteresisModel
 
 
-class HysteresisModel(eqx.Module):
+class HysteresisModel(AbstractHysteresisModel):
     """y = Σ_j w_j H_{r_j}[u] + Σ_k c_k z_k[u] + offset, sampled every `dt`.
 
     **Arguments:**
@@ -25,7 +28,8 @@ class HysteresisModel(eqx.Module):
     - `offset`: the output offset.
     - `dt`: the sampling interval; taken from `creep` when None.
 
-    `__call__` takes one input signal (T,) sampled every `dt`; batch with `jax.vmap`.
+    `__call__` takes one input signal (T,) sampled every `dt`; batch with `jax.vmap`. The state
+    is `(play_states, lag_states)` (`lag_states` None without creep).
     """
 
     pi: PIOperator
@@ -59,12 +63,83 @@ class HysteresisModel(eqx.Module):
         """The number of creep lags (0 without creep)."""
         return 0 if self.creep is None else self.creep.n_lags
 
-    def __call__(self, u: SignalLike) -> Signal:
-        """The model output (T,) for the input `u` (T,)."""
-        y = self.pi(u) + self.offset
+    def init_state(self, u0):
+        """`(play_states, lag_states)`: the model's own, the lags at rest at `u0` unless stated."""
+        z = None
         if self.creep is not None:
-            y = y + self.creep(u)
+            z = self.creep.initial_states
+            if z is None:
+                z = jnp.broadcast_to(jnp.asarray(u0, self.creep.weights.dtype), self.creep.weights.shape)
+        return self.pi.initial_states, z
+
+    def step(self, state, u):
+        """One sample: `((play_states, lag_states), y)` after the input `u`."""
+        x, z = state
+        x = play_step(x, u, self.pi.thresholds)
+        y = jnp.dot(self.pi.weights, x) + self.offset
+        if self.creep is not None:
+            z = lag_step(z, u, self.creep.decays)
+            y = y + jnp.dot(self.creep.weights, z)
+        return (x, z), y
+
+    def with_state(self, state) -> "HysteresisModel":
+        """The same model started from `(play_states, lag_states)`."""
+        x, z = state
+        return self.with_initial_states(x, z)
+
+    def __call__(self, u: SignalLike, state=None) -> Signal:
+        """The model output (T,) for the input `u` (T,), from `state` (default the model's own)."""
+        m = self if state is None else self.with_state(state)
+        y = m.pi(u) + m.offset
+        if m.creep is not None:
+            y = y + m.creep(u)
         return y
+
+    def final_state(self, u: SignalLike, state=None):
+        """`(play_states, lag_states)` after the last sample of `u`."""
+        m = self if state is None else self.with_state(state)
+        return m.pi.final_states(u), None if m.creep is None else m.creep.final_states(u)
+
+    def inverse_problem(self) -> str | None:
+        """Why the model has no stable inverse, or None: r_1 = 0 and positive cumulative weights
+        are needed, the lags' share of the present input counted with the first weight, and, for
+        an inverse that does not drift, the lags' steady gain counted with it too."""
+        r = np.asarray(self.pi.thresholds, np.float64)
+        w = np.asarray(self.pi.weights, np.float64)
+        if r[0] != 0:
+            return f"its smallest threshold is {r[0]:.6g}, not 0 (the identity play the inverse needs)"
+        c = a = np.zeros(0)
+        if self.creep is not None:
+            c = np.asarray(self.creep.weights, np.float64)
+            a = np.asarray(self.creep.decays, np.float64)
+        W = np.cumsum(w) + np.sum(c * (1 - a))
+        if np.any(W <= 0):
+            i = int(np.argmax(W <= 0))
+            share = " and the lags' share of the present input" if c.size else ""
+            return f"its weights w_1 ... w_{i + 1}{share} sum to {W[i]:.4g}, not a positive slope"
+        steady = np.cumsum(w) + np.sum(c)
+        if np.any(steady <= 0):
+            return (
+                f"the creep's steady gain ({np.sum(c):.4g}) outweighs the first play's weight ({w[0]:.4g}), "
+                "so the static map falls where only that play moves and the feedforward drifts on "
+                "slow targets"
+            )
+        return None
+
+    def inverse(self, desired: SignalLike, state=None) -> Signal:
+        """The input (T,) whose output follows `desired` (T,), from `state` (default the model's
+        own; the lags at rest at the input the first target needs unless stated).
+
+        Exact for PI + creep (module `composite_inverse`). `ValueError` when the model is not
+        invertible: r_1 != 0, or a cumulative weight <= 0 (the lags' share of the present input
+        counted with the first), or play states no input history can produce.
+        """
+        yd = _checks.finite(_checks.signal(desired, "desired"), "desired")
+        m = self if state is None else self.with_state(state)
+        v = yd - m.offset
+        if m.creep is None:
+            return m.pi.inverse()(v)
+        return creep_inverse(m.pi, m.creep, v)
 
     def with_initial_states(self, play_states=None, creep_states=None, offset=None):
         """The same model started from other states (or with another offset).

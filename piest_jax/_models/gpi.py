@@ -36,6 +36,8 @@ from jaxtyping import Array, ArrayLike, Float
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
 from .._operators.pi import PIOperator
+from .._operators.play import play_step
+from .model import AbstractHysteresisModel
 
 Terms = Float[Array, " terms"]
 
@@ -65,7 +67,7 @@ def output_function(v: Array, log_amplitudes: Array, centres: Array, log_scales:
     return offset + jnp.tanh(x) @ jnp.exp(log_amplitudes)
 
 
-class GeneralizedPI(eqx.Module):
+class GeneralizedPI(AbstractHysteresisModel):
     """A generalized PI model y = g(P[u]): a [`PIOperator`][] P, then a saturating output function.
 
     g(v) = offset + Σ_k a_k tanh((v - c_k)/s_k) is strictly increasing and bounded for every
@@ -163,9 +165,29 @@ class GeneralizedPI(eqx.Module):
         """
         return _output_inverse(self, jnp.asarray(y, self.centres.dtype), n_iter)
 
-    def __call__(self, u: SignalLike) -> Signal:
-        """The model output g(P[u]) (T,) for one input signal `u` (T,)."""
-        return self.output_function(self.pi(u))
+    def init_state(self, u0):
+        """The plays' states before the first sample (the model's own)."""
+        return self.pi.initial_states
+
+    def step(self, state, u):
+        """One sample: the plays' states after the input `u`, and the output g(P) there."""
+        x = play_step(state, u, self.pi.thresholds)
+        return x, self.output_function(jnp.dot(self.pi.weights, x))
+
+    def with_state(self, state) -> "GeneralizedPI":
+        """The same model with its plays started from `state`."""
+        return self.with_initial_states(state)
+
+    def __call__(self, u: SignalLike, state=None) -> Signal:
+        """The model output g(P[u]) (T,) for one input signal `u` (T,), from `state` (the plays'
+        states; default the model's own)."""
+        m = self if state is None else self.with_state(state)
+        return m.output_function(m.pi(u))
+
+    def final_state(self, u: SignalLike, state=None):
+        """The plays' states after the last sample of `u`."""
+        m = self if state is None else self.with_state(state)
+        return m.pi.final_states(u)
 
     def with_initial_states(self, play_states) -> "GeneralizedPI":
         """The same model with its plays started from `play_states` (scalar or (n,)).
@@ -189,11 +211,23 @@ class GeneralizedPI(eqx.Module):
         pi = PIOperator(self.pi.thresholds, self.pi.weights * lam, self.pi.initial_states, method=self.pi.method)
         return GeneralizedPI(pi, self.amplitudes, self.centres * lam, self.scales * lam, self.offset)
 
-    def inverse(self, y: SignalLike, *, n_iter: int = 80) -> Signal:
+    def inverse_problem(self) -> str | None:
+        """Why the model has no inverse (its PI part's r_1 != 0 or a cumulative weight <= 0), or
+        None."""
+        r = np.asarray(self.pi.thresholds, np.float64)
+        W = np.cumsum(np.asarray(self.pi.weights, np.float64))
+        if r[0] != 0:
+            return f"its smallest threshold is {r[0]:.6g}, not 0 (the identity play the inverse needs)"
+        if np.any(W <= 0):
+            i = int(np.argmax(W <= 0))
+            return f"its cumulative weight w_1 + ... + w_{i + 1} is {W[i]:.4g}, not positive"
+        return None
+
+    def inverse(self, y: SignalLike, state=None, *, n_iter: int = 80) -> Signal:
         """The input u (T,) whose output follows `y` (T,): u = P⁻¹[g⁻¹(y)], the compensator.
 
-        **Arguments:** `y` (T,), the desired output, inside `output_range()`; `n_iter`, bisection
-        steps of g⁻¹.
+        **Arguments:** `y` (T,), the desired output, inside `output_range()`; `state`, the plays'
+        states at the start (default the model's own); `n_iter`, bisection steps of g⁻¹.
 
         **Returns:** u (T,) with `self(u)` equal to `y` up to rounding. Raises `ValueError` (or an
         `eqx.error_if` error under `jit`) for a target outside the open output range, which no
@@ -211,7 +245,8 @@ class GeneralizedPI(eqx.Module):
                 )
         else:
             y = eqx.error_if(y, jnp.any(outside), "the desired output is outside the model's range")
-        return self.pi.inverse()(self.output_inverse(y, n_iter))
+        pi = self.pi if state is None else self.with_state(state).pi
+        return pi.inverse()(self.output_inverse(y, n_iter))
 
 
 # Jitted at module level so that repeat calls with the same shapes reuse one compiled program (an

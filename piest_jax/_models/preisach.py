@@ -42,6 +42,7 @@ from jaxtyping import Array, Float
 from .. import _checks
 from .._custom_types import Signal, SignalLike
 from .._operators.play import Method, play, play_step
+from .model import AbstractHysteresisModel
 
 Widths = Float[Array, " widths"]
 Centres = Float[Array, " centres"]
@@ -101,7 +102,7 @@ def _increasing(x: Array, name: str, strict: bool) -> Array:
     return eqx.error_if(x, bad, f"`{name}` must be increasing")
 
 
-class Preisach(eqx.Module):
+class Preisach(AbstractHysteresisModel):
     """A discrete Preisach model: blurred relays on a grid of half-widths × centres.
 
     y = offset + Σ_km μ_km clip((H_{r_k}[u] - c_m)/δ_m, -1, 1), H_r the play with threshold r (a
@@ -182,6 +183,11 @@ class Preisach(eqx.Module):
         self.method = method
 
     @property
+    def structure(self) -> str:
+        """`"preisach"`, the name model files give this structure."""
+        return "preisach"
+
+    @property
     def shape(self) -> tuple[int, int]:
         """(K, M): the number of half-widths and of centres."""
         K, M = self.density.shape
@@ -213,9 +219,30 @@ class Preisach(eqx.Module):
         H = self.plays(u)
         return relay_columns(H, self.centres.astype(H.dtype), self.blur.astype(H.dtype))
 
-    def __call__(self, u: SignalLike) -> Signal:
-        """The model output (T,) for one input signal `u` (T,)."""
-        return _relay_sum(self.plays(u), self.centres, self.blur, self.density, self.offset)
+    def init_state(self, u0):
+        """The plays' states before the first sample: the model's own, else relaxed at `u0`."""
+        if self.initial_states is None:
+            return jnp.broadcast_to(jnp.asarray(u0, self.density.dtype), self.half_widths.shape)
+        return self.initial_states
+
+    def step(self, state, u):
+        """One sample: the plays' states after the input `u`, and the output there."""
+        return self._step_output(state, u)
+
+    def with_state(self, state) -> "Preisach":
+        """The same model with its plays started from `state`."""
+        return self.with_initial_states(state)
+
+    def __call__(self, u: SignalLike, state=None) -> Signal:
+        """The model output (T,) for one input signal `u` (T,), from `state` (the plays' states;
+        default the model's own, else relaxed at the first input)."""
+        m = self if state is None else self.with_state(state)
+        return _relay_sum(m.plays(u), m.centres, m.blur, m.density, m.offset)
+
+    def final_state(self, u: SignalLike, state=None):
+        """The plays' states after the last sample of `u`."""
+        m = self if state is None else self.with_state(state)
+        return m.final_states(u)
 
     def with_initial_states(self, play_states) -> "Preisach":
         """The same model with its plays started from `play_states` (scalar or (K,); None: at
@@ -280,7 +307,14 @@ class Preisach(eqx.Module):
         u = jnp.clip(u_prev, jnp.minimum(u_lo, u_hi), jnp.maximum(u_lo, u_hi))
         return self._step_output(x, u)[0], u
 
-    def inverse(self, y: SignalLike, *, n_iter: int = 60) -> Signal:
+    def inverse_problem(self) -> str | None:
+        """Why the model has no inverse (a negative density entry), or None."""
+        mu = np.asarray(self.density)
+        if np.any(mu < 0):
+            return f"its density has {int(np.sum(mu < 0))} negative entries (down to {mu.min():.4g})"
+        return None
+
+    def inverse(self, y: SignalLike, state=None, *, n_iter: int = 60) -> Signal:
         """The input u (T,) whose output follows `y` (T,): the compensator of a monotone model.
 
         The plays start from `initial_states`; when those are None (relaxed at the first input),
@@ -289,7 +323,8 @@ class Preisach(eqx.Module):
         each sample is [`inverse_step`][piest_jax.Preisach.inverse_step] in a `lax.scan`. Where
         `y` is beyond what the model reaches, the input saturates at an end of `input_range()`.
 
-        **Arguments:** `y` (T,), the desired output; `n_iter`, bisection steps per sample.
+        **Arguments:** `y` (T,), the desired output; `state`, the plays' states at the start
+        (default `initial_states`); `n_iter`, bisection steps per sample.
 
         **Returns:** the input u (T,), with `self(u)` equal to `y` wherever `y` is reachable.
         """
@@ -303,7 +338,8 @@ class Preisach(eqx.Module):
                 )
         else:
             mu = eqx.error_if(mu, jnp.any(mu < 0), "a negative density cannot be inverted")
-        return _inverse(eqx.tree_at(lambda m: m.density, self, mu), y, n_iter)
+        m = self if state is None else self.with_state(state)
+        return _inverse(eqx.tree_at(lambda m: m.density, m, mu), y, n_iter)
 
 
 # Compiled as one program: run op by op, a new record length compiled each of its operations.
