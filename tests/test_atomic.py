@@ -214,10 +214,37 @@ def test_debris_of_a_killed_run_is_cleaned_up_but_live_temporaries_are_not(tmp_p
         os.utime(p, (1e9, 1e9))
     assert _sim(capsys, out)[0] == 0
     names = set(_tree(out))
-    assert old_dead.name not in names  # killed long ago: removed
-    # too recent (maybe a writer on another machine), still running, or not one of our results
-    assert {recent_dead.name, old_live.name, foreign.name} <= names
+    # Their writers are gone, and the run held the folder's lock (no other run wrote there): removed.
+    assert old_dead.name not in names and recent_dead.name not in names
+    # Still running, or not one of our results: kept. The lock went with the run.
+    assert {old_live.name, foreign.name} <= names and _io.LOCK_NAME not in names
     assert {"simulate.csv", "loop.png", "simulate.json"} <= names
+
+
+def test_one_run_per_output_folder(tmp_path, capsys):
+    import socket
+
+    out = tmp_path / "o"
+    out.mkdir()
+    lock = out / _io.LOCK_NAME
+    # A live run (here the test's parent process) holds the folder: a second run refuses it.
+    lock.write_text(f"{os.getppid()} {socket.gethostname()}\n")
+    code, cap = _sim(capsys, out, "--force")
+    assert code == 2 and cap.out == "" and cap.err.count("\n") == 1
+    assert f"another piest run (pid {os.getppid()} on {socket.gethostname()}) is writing there" in cap.err
+    assert set(_tree(out)) == {_io.LOCK_NAME}
+    # A run on another host cannot be checked: refused too, saying how to clear it.
+    lock.write_text("1 elsewhere.example\n")
+    code, cap = _sim(capsys, out)
+    assert code == 2 and f"remove {lock}" in cap.err
+    # The lock of a process that is gone is stale: taken over, and released at the end.
+    lock.write_text(f"{2**22 + 12345} {socket.gethostname()}\n")
+    code, cap = _sim(capsys, out)
+    assert code == 0, cap.err
+    assert not lock.exists() and {"simulate.csv", "loop.png", "simulate.json"} <= set(_tree(out))
+    # A refused run releases it too, and leaves no folder it created behind.
+    code, cap = _sim(capsys, tmp_path / "new", "--dt", "5")
+    assert code == 2 and not (tmp_path / "new").exists()
 
 
 def test_writers_are_atomic_on_any_exception(tmp_path):

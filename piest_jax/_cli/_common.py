@@ -132,6 +132,42 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_spike_option(p: argparse.ArgumentParser) -> None:
+    """--spikes, for the commands that fit a record's output."""
+    p.add_argument(
+        "--spikes",
+        choices=["refuse", "drop", "keep"],
+        default="refuse",
+        help="isolated spikes in the output (one sample far from both neighbours, a sensor glitch): "
+        "refuse the record naming them (default), drop them (each replaced by its neighbours' mean) "
+        "or keep them as measured",
+    )
+
+
+def _spikes(rec, path, args):
+    """The record with its output's isolated spikes handled as --spikes asks."""
+    import dataclasses
+
+    from .._data.spikes import isolated_spikes, without_spikes
+
+    rows = isolated_spikes(rec.y)
+    if rows.size == 0:
+        return rec
+    shown = ", ".join(f"t = {rec.t[i]:.6g} (sample {i}, y = {rec.y[i]:.6g})" for i in rows[:3])
+    more = f" and {rows.size - 3} more" if rows.size > 3 else ""
+    what = f"{rows.size} isolated spike{'s' if rows.size > 1 else ''} in the output at {shown}{more}"
+    if args.spikes == "refuse":
+        raise CLIError(
+            f"{path}: {what}: each far from both neighbours, which agree (a sensor glitch); "
+            "--spikes drop replaces each by its neighbours' mean, --spikes keep fits them as measured"
+        )
+    if args.spikes == "drop":
+        note(args, f"{path}: {what}, each replaced by its neighbours' mean (--spikes drop)")
+        return dataclasses.replace(rec, y=without_spikes(rec.y, rows))
+    note(args, f"{path}: {what}, fitted as measured (--spikes keep)")
+    return rec
+
+
 def read_record(path, args, *, validation: bool = False):
     """The record `path` as the options of `add_record_options` ask: one segment of it, or all
     of its segments joined, and a note on stderr when its time counts samples.
@@ -159,6 +195,8 @@ def read_record(path, args, *, validation: bool = False):
         )
     if rec.time_is_index:
         note_sample_time(args, path)
+    if getattr(args, "spikes", None) is not None:
+        rec = _spikes(rec, path, args)
     return rec
 
 

@@ -9,6 +9,7 @@ from ._common import (
     CLIError,
     add_output_options,
     add_record_options,
+    add_spike_option,
     note_loop,
     note_outside,
     read_record,
@@ -80,6 +81,7 @@ def add_arguments(p):
         help="print the report (report.json's text) instead of the paths written",
     )
     add_record_options(p)
+    add_spike_option(p)
     add_output_options(p, "piest-diagnose")
 
 

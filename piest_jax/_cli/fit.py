@@ -19,6 +19,7 @@ from ._common import (
     CLIError,
     add_output_options,
     add_record_options,
+    add_spike_option,
     finite_float,
     float_list,
     note_extrapolation,
@@ -222,6 +223,7 @@ def add_arguments(p):
     )
     fit_saturating.add_arguments(p)
     add_record_options(p)
+    add_spike_option(p)
     add_output_options(p, "piest-fit")
 
 

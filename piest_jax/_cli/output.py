@@ -12,6 +12,7 @@ import contextvars
 import errno
 import os
 import signal
+import socket
 import tempfile
 import threading
 import time
@@ -28,6 +29,8 @@ _TMP_SUFFIX = ".tmp"
 # Debris of a killed writer is removed only after this long, so a slow writer on another machine
 # sharing the folder is never disturbed.
 _DEBRIS_AGE_S = 3600.0
+# One run writes into an output folder at a time: it holds this file there (its PID and host).
+LOCK_NAME = ".piest.lock"
 # Held while a commit renames files; `discard_temporaries` (a signal's last act) waits for it.
 COMMIT_LOCK = threading.Lock()
 # Every folder this process has written a temporary into, and the transactions open now: what a
@@ -48,6 +51,13 @@ class OutputTransaction:
         self._staged: dict[Path, str] = {}
         self._stale: list[Path] = []
         self._created: list[Path] = []
+        self._locks: list[Path] = []
+
+    def release(self) -> None:
+        """Remove the output folders' locks this run holds."""
+        for lock in self._locks:
+            _unlink(lock)
+        self._locks = []
 
     def stage(self, path: Path, write) -> Path:
         """Write `path`'s new contents to a temporary file; it appears at `commit`."""
@@ -84,6 +94,7 @@ class OutputTransaction:
         for tmp in self._staged.values():
             _unlink(tmp)
         self._staged, self._stale = {}, []
+        self.release()
         for folder in reversed(self._created):
             with contextlib.suppress(OSError):
                 folder.rmdir()
@@ -120,6 +131,7 @@ def output_transaction(*, nonfinite=(), outputs=()):
     else:
         tx.commit()
     finally:
+        tx.release()
         _OPEN.remove(tx)
         _ACTIVE.reset(token)
 
@@ -135,6 +147,7 @@ def discard_temporaries() -> None:
             for p in folder.glob(f".*.{pid}.*{_TMP_SUFFIX}"):
                 _unlink(p)
     for tx in list(_OPEN):
+        tx.release()
         for folder in reversed(tx._created):
             with contextlib.suppress(OSError):
                 folder.rmdir()
@@ -306,8 +319,10 @@ def save_figure(fig, path, **kwargs) -> Path:
             plt.close(fig)
 
 
-def _remove_debris(out: Path, names) -> None:
-    """Remove temporaries that a killed run (`kill -9`, power loss) left for these results."""
+def _remove_debris(out: Path, names, locked: bool = False) -> None:
+    """Remove temporaries that a killed run (`kill -9`, power loss) left for these results: those
+    whose writer is gone, at once when this run holds the folder's lock (no other run writes
+    there, on any host), else once they are older than `_DEBRIS_AGE_S`."""
     now = time.time()
     for name in names:
         for p in out.glob(f".{name}.*{_TMP_SUFFIX}"):
@@ -315,11 +330,39 @@ def _remove_debris(out: Path, names) -> None:
             if not (len(parts) == 3 and parts[0].isdigit()):
                 continue
             try:
-                if now - p.stat().st_mtime < _DEBRIS_AGE_S or _alive(int(parts[0])):
+                pid = int(parts[0])
+                if _alive(pid) or (not locked and now - p.stat().st_mtime < _DEBRIS_AGE_S):
                     continue
                 p.unlink()
             except OSError:
                 pass
+
+
+def _lock(out: Path) -> Path:
+    """Take `out`'s lock for this process: `FileExistsError` naming the run that holds it; a
+    lock whose process on this host is gone is taken over."""
+    lock = out / LOCK_NAME
+    me = f"{os.getpid()} {socket.gethostname()}\n"
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid_text, _, host = lock.read_text().strip().partition(" ")
+            except OSError:
+                pid_text, host = "", ""
+            if pid_text.isdigit() and host == socket.gethostname() and not _alive(int(pid_text)):
+                _unlink(lock)  # stale: its process is gone
+                continue
+            who = f"pid {pid_text} on {host}" if pid_text.isdigit() else "another process"
+            raise FileExistsError(
+                f"--out {out}: another piest run ({who}) is writing there; wait for it to end or "
+                f"choose another --out (if none is running, remove {lock})"
+            ) from None
+        with os.fdopen(fd, "w") as f:
+            f.write(me)
+        return lock
+    raise FileExistsError(f"--out {out}: cannot take its lock {lock}")
 
 
 def _alive(pid: int) -> bool:
@@ -377,7 +420,11 @@ def check_outputs(out_dir, names, force: bool) -> Path:
         # The folder exists, so "No such file or directory" (what /proc answers) would mislead.
         why = "it takes no new files" if e.errno == errno.ENOENT else (e.strerror or e)
         raise OSError(f"--out {out}: cannot write there ({why})") from None
+    locked = False
     if tx is not None:
+        if out / LOCK_NAME not in tx._locks:
+            tx._locks.append(_lock(out))
+        locked = True
         tx._stale.extend(out / n for n in others if (out / n).exists())
-    _remove_debris(out, names + others)
+    _remove_debris(out, names + others, locked)
     return out
