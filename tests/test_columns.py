@@ -30,6 +30,36 @@ def _run(capsys, argv):
     return code, cap.out, cap.err
 
 
+@pytest.mark.parametrize(
+    "header, order",
+    [
+        ("Time [s],Voltage [V],Displacement [um]", (0, 1, 2)),
+        ("time_s,input_V,output_um", (0, 1, 2)),
+        ("Displacement (um);Time (s);Voltage (V)", (1, 2, 0)),
+    ],
+)
+def test_headers_name_their_roles_by_leading_word(header, order, tmp_path):
+    # `order`: the file's column of t, u and y.
+    cols = [None] * 3
+    for signal, i in zip((T, U, Y), order):
+        cols[i] = signal
+    delim = ";" if ";" in header else ","
+    body = "".join(delim.join(repr(float(c[k])) for c in cols) + "\n" for k in range(T.size))
+    path = tmp_path / "r.csv"
+    path.write_text(header + "\n" + body)
+    rec = pj.load_record(path)
+    np.testing.assert_array_equal(rec.t, T)
+    np.testing.assert_array_equal(rec.u, U)
+    np.testing.assert_array_equal(rec.y, Y)
+    assert rec.extras == {}
+
+
+def test_two_columns_of_one_role_are_not_guessed(tmp_path):
+    path = _write(tmp_path / "r.csv", "Time [s],Voltage [V],Voltage [mV]")
+    with pytest.raises(pj.DataError, match="no header row naming the columns t, u and y"):
+        pj.load_record(path)
+
+
 @pytest.mark.parametrize("header", ["t [s],u [V],y [um]", '"T (s)";"U (V)";"Y [µm]"', "t,u ( V ),y[um]"])
 def test_units_in_the_header_match_by_name(header, tmp_path):
     delim = ";" if ";" in header else ","
@@ -50,8 +80,11 @@ def test_columns_name_the_file_s_columns(tmp_path):
         rec = pj.load_record(path, columns=columns)
         np.testing.assert_array_equal(rec.y, Y)
         assert rec.extras == {}
+    # Their leading words name the roles: read without columns= too.
+    np.testing.assert_array_equal(pj.load_record(path).y, Y)
+    other = _write(tmp_path / "o.csv", "secs,volts,disp_um")
     with pytest.raises(ValueError, match=r"no header row naming the columns t, u and y .*columns="):
-        pj.load_record(path)
+        pj.load_record(other)
     with pytest.raises(ValueError, match="columns= needs three distinct names"):
         pj.load_record(path, columns=("time_s", "time_s", "voltage_V"))
     with pytest.raises(ValueError, match=r"missing column\(s\) y_um"):

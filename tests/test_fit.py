@@ -504,3 +504,19 @@ def test_a_long_record_is_chosen_on_its_first_stretch(noisy, monkeypatch):
     np.testing.assert_allclose(choice.fit.rmse, whole.rmse, rtol=1e-6)
     # BIC scores whole-record fits.
     assert pj.select_plays(u, y, (2, 3), criterion="bic", n_starts=1).selection_samples == T
+
+
+def test_quiet_fit_prints_only_the_paths(tmp_path, capsys):
+    from piest_jax._cli import main
+
+    t = np.linspace(0, 8, 600)
+    u = 3 * np.sin(2 * np.pi * 0.5 * t)
+    y = np.asarray(pj.PIOperator([0.0, 1.0], [1.0, 0.5], u[0])(u)) + 0.001 * np.random.default_rng(4).standard_normal(
+        600
+    )
+    path = tmp_path / "d.csv"
+    np.savetxt(path, np.column_stack([t, u, y]), delimiter=",", header="t,u,y", comments="")
+    out = tmp_path / "o"
+    assert main(["fit", str(path), "--plays", "2", "--model", "pi", "--out", str(out), "--quiet"]) == 0
+    cap = capsys.readouterr()
+    assert cap.err == "" and cap.out.split() == [str(out / n) for n in ("fit.json", "fit.md", "fit.png")]

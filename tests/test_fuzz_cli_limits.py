@@ -160,6 +160,8 @@ CASES = [
     # a record with a gap: the option named exists for the command
     (["simulate", "--input", "csv", "--csv", "{gap}"], "(CLI: --resample)"),
     (["diagnose", "{gap}"], "(CLI: --resample)"),
+    (["fit", "{rec}", "--max-gap", "1"], "--max-gap is only used with --resample"),
+    (["simulate", "--max-gap", "1"], "--max-gap is only used with --input csv"),
     (["estimate", "{gap}"], "(CLI: --resample)"),
     # a record of several segments: one of them, when asked for, must hold a record's minimum
     (["fit", "{short}", "--segment", "1"], "{short}: segment 1 has only 5 samples; at least 8 are needed"),
@@ -197,9 +199,13 @@ def test_an_unwritable_out_is_found_before_the_computation(files, capsys):
 
 def test_a_gap_is_resampled_where_the_message_says(files, capsys):
     out = files["dir"] / "o"
-    code, _, err = _run(
-        capsys, ["simulate", "--input", "csv", "--csv", files["gap"], "--resample", "--out", str(out)], stop=False
-    )
+    # A gap of 51 steps: refused by default (it would invent 50 samples), filled when allowed.
+    argv = ["simulate", "--input", "csv", "--csv", files["gap"], "--resample", "--out", str(out)]
+    code, _, err = _run(capsys, argv, stop=False)
+    assert code == 2 and err.count("\n") == 1, err
+    assert "a gap of 0.51 (t = 1 to 1.51) is too long to resample across: longer than 10 median steps" in err
+    assert "50 invented samples" in err and "--max-gap" in err and not out.exists()
+    code, _, err = _run(capsys, [*argv, "--max-gap", "0.6"], stop=False)
     assert code == 0, err
     data = np.loadtxt(out / "simulate.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(np.diff(data[:, 0]), 0.01, rtol=1e-9)

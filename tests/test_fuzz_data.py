@@ -149,7 +149,7 @@ def test_every_damaged_file_names_file_row_and_problem(tmp_path):
         ("\n   \n\t\n", r": the file is empty$"),
         ("t,u,y\n", r": the header is there but no data rows follow"),
         ("# comment\nt,u,y\n# nothing else\n\n", r": the header is there but no data rows follow"),
-        ("time,input,output\n0,1,2\n", r": no header row naming the columns t, u and y"),
+        ("secs,volts,disp\n0,1,2\n", r": no header row naming the columns t, u and y"),
         ("1,2,3\n4,5,6\n", r": no header row naming the columns t, u and y .*first line: '1,2,3'"),
         ("t,u,x\n0,1,2\n", r", row 1: missing column\(s\) y: the header has t, u, x"),
         ("t,u,y,u\n0,1,2,3\n", r", row 1: duplicated column name\(s\) in the header: u"),

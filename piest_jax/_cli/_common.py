@@ -118,11 +118,18 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
         "--columns",
         type=columns_arg((3, 2), "time_s,voltage_V,displacement_um or H,B"),
         metavar="[TIME,]INPUT,OUTPUT",
-        help="the data file's names of its time, input and output columns (default t,u,y; "
-        "names match without case or a unit in brackets: `t [s]` is t); two names for data "
-        "without time, whose samples are then counted (step 1)",
+        help="the data file's names of its time, input and output columns (default t,u,y, or "
+        "columns whose leading words are time, input/voltage and output/displacement; names match "
+        "without case or a unit in brackets: `t [s]` is t); two names for data without time, whose "
+        "samples are then counted (step 1)",
     )
     p.add_argument("--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid")
+    p.add_argument(
+        "--max-gap",
+        type=positive_float,
+        metavar="SECONDS",
+        help="with --resample, the longest gap in time it fills (default 10 median steps; longer ones are refused)",
+    )
     p.add_argument(
         "--segment",
         type=finite_float,
@@ -181,7 +188,9 @@ def read_record(path, args, *, validation: bool = False):
     """
     from .._data.record import load_record
 
-    rec = load_record(path, resample=args.resample, columns=args.columns)
+    if args.max_gap is not None and not args.resample:
+        raise CLIError("--max-gap is only used with --resample")
+    rec = load_record(path, resample=args.resample, max_gap=args.max_gap, columns=args.columns)
     if args.segment is not None and not validation:
         rec = rec.select_segment(args.segment)
     elif rec.n_segments > 1:

@@ -57,7 +57,7 @@ z_k is a first-order lag of u with time constant tau_k (creep), fitted jointly. 
                        input lies outside input_range, where the model extrapolates: a note
                        says so) and validation_inside_input_range (rmse, and rmse_ic where
                        there is an IC estimate, over the others)
-  DIR/fit.md           the parameters as a value +- std error table (also on stderr)
+  DIR/fit.md           the parameters as a value +- std error table (also on stderr, unless --quiet)
   DIR/fit.png          the measured and fitted loops and the residual over time, with the
                        95 % measurement band shaded
   DIR/validation.png   the same for --validate VAL.csv (raw prediction)
@@ -356,7 +356,8 @@ def run(args) -> int:
                 dpi=110,
             )
         )
-    print(table, end="", file=sys.stderr)
+    if not args.quiet:
+        print(table, end="", file=sys.stderr)
     if f.undetermined_names:
         print(
             f"piest fit: warning: the record does not determine {', '.join(f.undetermined_names)} "

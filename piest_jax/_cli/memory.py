@@ -1,6 +1,7 @@
 """Memory a command's options and inputs need, estimated before any work, against what the
-machine has available: a request that cannot fit is refused in one line (exit 2) at once,
-rather than failing after minutes with `MemoryError` or being killed by the system.
+process can have (the machine's available memory, its address-space limit, its cgroup's limit):
+a request that cannot fit is refused in one line (exit 2) at once, rather than failing after
+minutes with `MemoryError` or being killed by the system.
 
 The estimates count the largest arrays a command holds at one time (8-byte floats), times a
 small factor for the copies and workspaces JAX and the solvers make; they are meant to be right
@@ -14,8 +15,8 @@ from ._common import CLIError
 FLOAT = 8
 
 
-def available_bytes() -> int | None:
-    """The memory the system can give this process now (Linux: MemAvailable), or None."""
+def _system_bytes() -> int | None:
+    """The memory the system can give a process now (Linux: MemAvailable), or None."""
     try:
         with open("/proc/meminfo") as f:
             for line in f:
@@ -27,6 +28,74 @@ def available_bytes() -> int | None:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
         return None
+
+
+def _status_bytes(key: str) -> int | None:
+    """A size from /proc/self/status (`VmSize`: the address space this process uses)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _address_space_room() -> int | None:
+    """What this process's address-space limit (RLIMIT_AS, `ulimit -v`) leaves it, or None."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError):
+        return None
+    if soft == resource.RLIM_INFINITY or soft < 0:
+        return None
+    used = _status_bytes("VmSize") or 0
+    return max(int(soft) - used, 0)
+
+
+def _read_number(path: str) -> int | None:
+    try:
+        with open(path) as f:
+            text = f.read().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None  # "max": no limit
+
+
+def _cgroup_room(root: str = "/sys/fs/cgroup") -> int | None:
+    """What this process's cgroup memory limit leaves (v2 memory.max, v1 limit_in_bytes)."""
+    for limit, usage in (
+        ("memory.max", "memory.current"),
+        ("memory/memory.limit_in_bytes", "memory/memory.usage_in_bytes"),
+    ):
+        top = _read_number(os.path.join(root, limit))
+        # cgroup v1 states "no limit" as a number near 2^63.
+        if top is not None and top < 2**60:
+            return max(top - (_read_number(os.path.join(root, usage)) or 0), 0)
+    return None
+
+
+# Each source of the available memory, with how a refusal names it.
+_SOURCES = (
+    (_system_bytes, "available"),
+    (_address_space_room, "left under this process's address-space limit (ulimit -v)"),
+    (_cgroup_room, "left under its cgroup's memory limit"),
+)
+
+
+def _available() -> tuple[int | None, str]:
+    """The least memory any source allows, and how to name it."""
+    found = [(n, what) for source, what in _SOURCES if (n := source()) is not None]
+    return min(found) if found else (None, "available")
+
+
+def available_bytes() -> int | None:
+    """The memory this process can have now: the least of what the system has available, what
+    its address-space limit leaves and what its cgroup's limit leaves; None when none is known."""
+    return _available()[0]
 
 
 def _size(n: float) -> str:
@@ -44,8 +113,10 @@ def require(nbytes: float, what: str, advice: str) -> None:
     """
     avail = available_bytes()
     if avail is not None and nbytes > avail:
+        known, label = _available()
         raise CLIError(
-            f"{what} needs about {_size(nbytes)} of memory, more than the {_size(avail)} available; {advice}"
+            f"{what} needs about {_size(nbytes)} of memory, more than the {_size(avail)} "
+            f"{label if known == avail else 'available'}; {advice}"
         )
 
 

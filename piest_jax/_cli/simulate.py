@@ -89,6 +89,7 @@ def _input(args):
         (args.csv, "--csv"),
         (args.columns, "--columns"),
         (args.resample, "--resample"),
+        (args.max_gap is not None, "--max-gap"),
         (args.segment is not None, "--segment"),
     ):
         if given:

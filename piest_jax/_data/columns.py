@@ -2,7 +2,9 @@
 quoted fields, and what is not a number.
 
 - A header cell is matched by its name without quotes, case or a trailing unit in brackets or
-  parentheses: `t [s]`, `"T (s)"` and `t` all name the column `t`.
+  parentheses: `t [s]`, `"T (s)"` and `t` all name the column `t`. A header without t, u, y
+  whose columns' leading words name the roles (`ROLE_WORDS`: time; input or voltage; output or
+  displacement), one column each, is read as t, u, y: `Time [s],Voltage [V],Displacement [um]`.
 - `columns=("time_s", "voltage_V", "displacement_um")` names the file's columns that hold t, u
   and y (matched the same way); the CLI's `--columns TIME,INPUT,OUTPUT` passes it. Two names
   (`columns=("H", "B")`) name the input and output of data without a time column.
@@ -16,6 +18,10 @@ quoted fields, and what is not a number.
 """
 
 import re
+
+# The leading words that name a column's role when a header does not say t, u, y:
+# `Time [s],Voltage [V],Displacement [um]` is a record.
+ROLE_WORDS = {"t": ("time",), "u": ("input", "voltage"), "y": ("output", "displacement")}
 
 # Names of a time column that counts samples rather than seconds.
 INDEX_NAMES = ("index", "idx", "sample", "n", "k", "i")
@@ -72,3 +78,20 @@ def column_names(columns, source: str) -> tuple[str | None, str, str] | None:
     if len(names) == 3:
         return names[0], names[1], names[2]
     return None, names[0], names[1]
+
+
+def leading_word(name: str) -> str:
+    """A base name's first word: `displacement_um` and `displacement um` give `displacement`."""
+    return re.split(r"[^0-9a-z]+", name, maxsplit=1)[0]
+
+
+def by_role(names) -> tuple[str, str, str] | None:
+    """The (time, input, output) columns of base `names` by their leading words (`ROLE_WORDS`),
+    when each role has exactly one; None otherwise."""
+    chosen = []
+    for role in ("t", "u", "y"):
+        hits = [n for n in names if leading_word(n) in ROLE_WORDS[role]]
+        if len(hits) != 1:
+            return None
+        chosen.append(hits[0])
+    return chosen[0], chosen[1], chosen[2]

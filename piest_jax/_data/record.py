@@ -7,7 +7,7 @@ from typing import NoReturn
 
 import numpy as np
 
-from .columns import INDEX_NAMES, SEGMENT, base_name, column_names, to_number
+from .columns import INDEX_NAMES, SEGMENT, base_name, by_role, column_names, to_number
 
 MIN_SAMPLES = 8
 _DELIMITERS = (",", ";", "\t")
@@ -133,6 +133,7 @@ class Record:
         min_samples: int = MIN_SAMPLES,
         dt_tolerance: float = 1e-3,
         resample: bool = False,
+        max_gap: float | None = None,
         segment=None,
         time_is_index: bool = False,
     ) -> "Record":
@@ -144,7 +145,7 @@ class Record:
           `t` None for data without time (the sample number is used, `time_is_index` set).
         - `extras`: further columns by name, each as long as `u`.
         - `source`: the description that error messages and `Record.source` carry.
-        - `min_samples`, `dt_tolerance`, `resample`: as for [`load_record`][].
+        - `min_samples`, `dt_tolerance`, `resample`, `max_gap`: as for [`load_record`][].
         - `segment`: None, or segment labels, one per sample (see [`Record`][]).
         - `time_is_index`: `t` is a sample index, not a time in seconds.
 
@@ -172,7 +173,7 @@ class Record:
                 _fail(source, f"column `{name}` has {len(col)} samples but `t` has {n}")
         t, u, y = cols.pop("t"), cols.pop("u"), cols.pop("y")
         seg = cols.pop(SEGMENT) if segment is not None else None
-        opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample)
+        opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample, max_gap=max_gap)
         return _record(t, u, y, cols, source, None, seg, time_is_index, **opts)
 
     @classmethod
@@ -228,6 +229,8 @@ def _pick(names, given, source, where, row=None, hint=""):
         return given
     if {"t", "u", "y"} <= set(names):
         return "t", "u", "y"
+    if {"u", "y"} & set(names) == set() and (roles := by_role(names)) is not None:
+        return roles
     if {"u", "y"} <= set(names):
         others = [n for n in names if n not in ("u", "y", SEGMENT)]
         index = [n for n in others if n in INDEX_NAMES]
@@ -408,7 +411,13 @@ def _finite(cols, source, rows):
             _fail(source, f"column `{name}` holds {col[k]} (NaN or inf are not data)", row)
 
 
-def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resample, step=None, part=None):
+# Resampling interpolates across gaps up to this many median steps unless told otherwise.
+MAX_GAP_STEPS = 10
+
+
+def _validate(
+    t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resample, max_gap=None, step=None, part=None
+):
     """Time and length checked (and resampled when asked); `step`, the step to hold time to
     (default: its median); `part`, the segment's name for messages."""
     if len(t) < min_samples:
@@ -436,6 +445,19 @@ def _validate(t, u, y, extras, source, rows, *, min_samples, dt_tolerance, resam
                 row,
             )
         n = int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1
+        limit = MAX_GAP_STEPS * step if max_gap is None else float(max_gap)
+        if np.any(dt > limit):
+            k = int(np.argmax(dt))
+            row = rows[k + 1] if rows is not None else None
+            said = f"max_gap {limit:.6g}" if max_gap is not None else f"{MAX_GAP_STEPS} median steps"
+            _fail(
+                source,
+                f"a gap of {dt[k]:.6g} (t = {float(t[k]):.10g} to {float(t[k + 1]):.10g}) is too long to "
+                f"resample across: longer than {said} (median step {step:.6g}), it would be filled with "
+                f"{int(round(dt[k] / step)) - 1} invented samples; split the record, or allow it with "
+                "max_gap (CLI: --max-gap)",
+                row,
+            )
         if n > 10 * len(t):
             # Interpolating across a gap this long would invent most of the record.
             k = int(np.argmax(dt))
@@ -458,6 +480,7 @@ def load_record(
     min_samples: int = MIN_SAMPLES,
     dt_tolerance: float = 1e-3,
     resample: bool = False,
+    max_gap: float | None = None,
     columns=None,
 ) -> Record:
     """Read a measured record from a CSV (header naming `t,u,y`) or an NPZ (arrays `t`, `u`, `y`).
@@ -476,6 +499,8 @@ def load_record(
     - `min_samples`: fewer samples than this are rejected.
     - `dt_tolerance`: largest relative deviation of a time step from the median step.
     - `resample`: interpolate linearly onto a uniform grid instead of rejecting non-uniform time.
+    - `max_gap`: the longest gap between samples that `resample` fills (in the time unit; default
+      10 median steps); a longer one is refused, since most of what fills it would be invented.
     - `columns`: the names of the file's time, input and output columns, e.g.
       `("time_s", "voltage_V", "displacement_um")` or `"time_s,voltage_V,displacement_um"`
       (default: `t`, `u`, `y`); they become the record's `t`, `u`, `y`. Two names (`"H,B"`)
@@ -483,12 +508,12 @@ def load_record(
 
     **Returns:** a [`Record`][]. Raises [`DataError`][] (a `ValueError`) naming the file, the row
     where it applies, and the problem: missing columns, non-numeric cells, NaN/inf, too few
-    samples, time not strictly increasing, non-uniform sampling, mismatched lengths, a segment
-    whose rows are not together.
+    samples, time not strictly increasing, non-uniform sampling, a gap too long to resample,
+    mismatched lengths, a segment whose rows are not together.
     """
     path, source = _existing(path)
     names = column_names(columns, source)
-    opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample)
+    opts = dict(min_samples=min_samples, dt_tolerance=dt_tolerance, resample=resample, max_gap=max_gap)
     if path.suffix.lower() == ".npz":
         return _load_npz(path, source, names, **opts)
     if names is None:
@@ -606,6 +631,7 @@ def _header(lines, source, required, hint, quasi):
     if quasi:
         found = next((c for c in _header_candidates(lines) if set(required) <= set(c[2])), None)
         found = found or next((c for c in _header_candidates(lines) if {"u", "y"} <= set(c[2])), None)
+        found = found or next((c for c in _header_candidates(lines) if by_role(c[2]) is not None), None)
     h, delim, names = found or _find_header(lines, source, required, hint)
     chosen = _pick(names, None, source, "the header", h + 1, hint) if quasi else None
     dupes = sorted({n for n in names if names.count(n) > 1})
