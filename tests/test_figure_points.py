@@ -58,3 +58,16 @@ def test_a_long_record_figure_draws_few_points():
     short = pj.fit_figure(pj.Record(t[:1000], u[:1000], u[:1000] + e[:1000]), u[:1000])
     assert [x.get_text() for x in short.axes[0].get_legend().get_texts()] == ["measured", "model"]
     assert short.axes[1].get_lines()[0].get_xdata().size == 1000
+
+
+def test_a_transient_does_not_set_the_residual_axis():
+    from piest_jax._identification.figures import residual_limits
+
+    rng = np.random.default_rng(0)
+    e = 0.1 * rng.standard_normal(5000)
+    lo, hi, clipped = residual_limits(e)
+    assert not clipped and lo < e.min() and hi > e.max() and hi - lo < 1.3 * np.ptp(e)
+    e[:10] = -25.0 + np.arange(10)  # a start-up transient, 100x the rest
+    lo, hi, clipped = residual_limits(e)
+    assert clipped and lo > -1.0 and hi < 1.0
+    assert np.mean((e >= lo) & (e <= hi)) > 0.99

@@ -193,7 +193,8 @@ def _write(args, out, t, yd, u, ym, fields) -> int:
         **{k: fields[k] for k in ("max_rate", "n_clipped") if k in fields},
     } | outside
     written.append(_io.write_json(out / "compensate.json", summary))
-    written.append(_io.save_figure(compensation_figure(t, yd, u), out / "compensate.png", dpi=110))
+    figure = compensation_figure(t, yd, u, input_range=_limits(args.model)["range"])
+    written.append(_io.save_figure(figure, out / "compensate.png", dpi=110))
     for p in written:
         print(p)
     return 0

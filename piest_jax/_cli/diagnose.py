@@ -1,5 +1,6 @@
 """`piest diagnose`: find where a PI model and the data disagree, name the missing effects."""
 
+from .. import _parameter_table as _table
 from .._diagnosis.effects import EFFECT, EFFECTS, RECORD_SPECIFIC
 from .._diagnosis.figure import diagnosis_figure
 from .._report import json_text
@@ -233,25 +234,17 @@ def _markdown(d, data):
             ]
     for e, par in d.parameters.items():
         if par:
-            lines.append(
-                f"- `{e}`: "
-                + ", ".join(f"{k} = {x:.4g}" if isinstance(x, float) else f"{k} = {x}" for k, x in par.items())
-            )
+            lines.append(f"- `{e}`: " + ", ".join(f"{k} = {_short(x)}" for k, x in par.items()))
     if d.uncertainty is not None:
         u = d.uncertainty
         lines += [
             "",
             f"Standard errors ({u['method']}, from the final model's Jacobian on {u['samples']} samples):",
             "",
-            "| parameter | value | std error | |",
-            "|---|---|---|---|",
+            _table.HEADER,
         ]
         for n, x in u["values"].items():
-            se = u["std_errors"][n]
-            lines.append(
-                f"| {n} | {x:.6g} | {'undetermined (rank)' if se is None else f'± {se:.4g}'} | "
-                f"{'undetermined' if n in u['undetermined'] else ''} |"
-            )
+            lines.append(_table.row(n, x, u["std_errors"][n], undetermined=n in u["undetermined"]))
     lines += ["", "## Rounds (held-out RMSE per candidate; score = penalised gain / noise variance)", ""]
     for i, r in enumerate(d.rounds):
         lines.append(
@@ -277,3 +270,12 @@ def _markdown(d, data):
     if not any(w["structured"] for w in d.where):
         lines.append("- nowhere: the residual is at the noise floor")
     return "\n".join(lines) + "\n"
+
+
+def _short(x) -> str:
+    """A parameter for report.md: numbers to four digits, lists of them likewise."""
+    if isinstance(x, float):
+        return f"{x:.4g}"
+    if isinstance(x, list | tuple) and x and all(isinstance(v, float) for v in x):
+        return "[" + ", ".join(f"{v:.4g}" for v in x) + "]"
+    return str(x)

@@ -39,6 +39,7 @@ from jax import lax
 from jaxtyping import Array
 
 from .. import _checks
+from .. import _parameter_table as _table
 from .._bounded_jit import bounded_jit
 from .fit_data import Scales
 from .time_constants import LAG_RATIO, lag_log_tau
@@ -613,18 +614,17 @@ def play_flags(names, undetermined, n_plays):
 
 
 def table(fit) -> str:
-    """A `value ± std error` table of a fit's parameters in Markdown, undetermined ones marked.
+    """A `value ± std error` table of a fit's parameters in Markdown, each value rounded to its
+    standard error, undetermined ones and ones held on a bound marked.
 
     **Arguments:** `fit`, a `PIFit` with a covariance.
 
     **Returns:** the table's text (one header, one row per parameter).
     """
-    rows = ["| parameter | value | std error | |", "|---|---|---|---|"]
+    rows = [_table.HEADER]
     held = set(getattr(fit, "held_names", ()))
     for n, v, s, bad in zip(
         fit.parameter_names, np.asarray(fit.parameter_values), np.asarray(fit.std_errors), np.asarray(fit.undetermined)
     ):
-        se = f"± {s:.4g}" if np.isfinite(s) else "undetermined (rank)"
-        note = "undetermined" if bad else "on its bound" if n in held else ""
-        rows.append(f"| {n} | {v:.6g} | {se} | {note} |")
+        rows.append(_table.row(n, float(v), float(s), undetermined=bool(bad), held=n in held))
     return "\n".join(rows) + "\n"

@@ -56,6 +56,19 @@ def _broken(a, gaps):
     return np.insert(np.asarray(a, float), np.flatnonzero(gaps) + 1, np.nan)
 
 
+def residual_limits(e) -> tuple[float, float, bool]:
+    """Axis limits for a residual: its whole range, or, when a few samples (a transient) reach
+    more than its 0.5-99.5 % range again beyond it, that range padded; and whether any sample
+    lies beyond the limits."""
+    e = np.asarray(e, float)
+    lo, hi = (float(v) for v in np.percentile(e, [0.5, 99.5]))
+    span = max(hi - lo, 1e-12)
+    if e.min() >= lo - span and e.max() <= hi + span:
+        lo, hi, span = float(e.min()), float(e.max()), max(float(np.ptp(e)), 1e-12)
+    lo, hi = lo - 0.1 * span, hi + 0.1 * span
+    return lo, hi, bool(e.min() < lo or e.max() > hi)
+
+
 def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
     """A model against a record: the measured and modelled loops, and the residual over time.
 
@@ -107,35 +120,55 @@ def fit_figure(record, prediction, *, title: str = "fit", mask=None, band=None):
         a2.plot(t, e, lw=0.6)
     if mask is not None and not np.all(np.asarray(mask)):
         a2.axvspan(t[0], t[np.argmax(np.asarray(mask) > 0)], color="0.85", label="not fitted")
-        # Scaled to the fitted samples: a transient left out would otherwise flatten the rest.
+    # Scaled to the bulk of the fitted samples' residual: a start-up transient, fitted or left
+    # out, would otherwise flatten the rest into a line. What goes beyond is said.
+    lo, hi, clipped = residual_limits(e[used])
+    a2.set_ylim(lo, hi)
+    if clipped:
         eu = e[used]
-        pad = 0.1 * max(np.ptp(eu), 1e-12)
-        a2.set_ylim(eu.min() - pad, eu.max() + pad)
+        a2.text(
+            0.01,
+            0.02,
+            f"beyond the axis: the residual reaches {eu.min():.3g} and {eu.max():.3g}",
+            transform=a2.transAxes,
+            fontsize=7,
+            color="0.3",
+        )
     if band is not None or mask is not None and not np.all(np.asarray(mask)):
         a2.legend(fontsize=8, loc="upper right")
     rmse = float(np.sqrt(np.mean(e[used] ** 2)))
-    a2.set(xlabel="time", ylabel="y - model", title=f"residual, RMSE {rmse:.4g}")
+    unit = "sample" if getattr(record, "time_is_index", False) else "time [s]"
+    a2.set(xlabel=unit, ylabel="y - model", title=f"residual, RMSE {rmse:.4g}")
     fig.tight_layout()
     return fig
 
 
-def compensation_figure(t, desired, u):
-    """A feedforward compensation: the desired output and the input over time, and the input
-    against the desired output (the inverse loop).
+def compensation_figure(t, desired, u, *, time_unit: str = "s", input_range=None):
+    """A feedforward compensation: the desired output and the input over time, each on its own
+    axis, and the input against the desired output (the inverse loop).
 
     **Arguments:** `t`, `desired`, `u`: time, the desired output and the feedforward input
-    (e.g. from [`feedforward`][]), (T,) each.
+    (e.g. from [`feedforward`][]), (T,) each; `time_unit`, the time axis's unit; `input_range`,
+    the (lo, hi) input range the model was fitted on, shaded where given.
 
-    **Returns:** a `matplotlib.figure.Figure` (11 x 4 inches), made without pyplot.
+    **Returns:** a `matplotlib.figure.Figure` (11 x 5 inches), made without pyplot.
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(11, 4))
-    a1, a2 = fig.subplots(1, 2)
-    a1.plot(t, desired, "k", lw=0.8, label="desired output")
-    a1.plot(t, u, "C1", lw=0.8, label="feedforward input")
-    a1.set(xlabel="time", title="compensation")
-    a1.legend(fontsize=8)
+    fig = Figure(figsize=(11, 5))
+    grid = fig.add_gridspec(2, 2, width_ratios=(1.4, 1))
+    a1 = fig.add_subplot(grid[0, 0])
+    a0 = fig.add_subplot(grid[1, 0], sharex=a1)
+    a2 = fig.add_subplot(grid[:, 1])
+    a1.plot(t, desired, "k", lw=0.8)
+    a1.set(ylabel="desired output", title="compensation")
+    a1.tick_params(labelbottom=False)
+    a0.plot(t, u, "C1", lw=0.8)
+    a0.set(xlabel=f"time [{time_unit}]", ylabel="feedforward input")
+    if input_range is not None:
+        for ax in (a0, a2):
+            ax.axhspan(*input_range, color="0.9", zorder=0, label="fitted input range")
+        a0.legend(fontsize=8, loc="upper right")
     a2.plot(desired, u, lw=0.8)
     a2.set(xlabel="desired output", ylabel="feedforward input", title="inverse loop")
     fig.tight_layout()
