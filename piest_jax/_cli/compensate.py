@@ -24,8 +24,8 @@ model's dt) (a header naming `t` and the column given by --column, default `desi
 Writes
   DIR/compensate.csv    columns t, desired, u (the feedforward input) and model (the model's
                         output for u, equal to desired up to rounding)
-  DIR/compensate.json   the model file, the plays' initial states used, the input's range,
-                        the largest |model - desired|, and the model's fitted input range with
+  DIR/compensate.json   the model file, the plays' initial states used, the input's range and
+                        fastest rate (max_rate), the largest |model - desired|, and the model's fitted input range with
                         the fraction of the input outside it (also noted on stderr; absent when
                         the model file does not say)
   DIR/compensate.png    desired output and feedforward input over time, and u against desired

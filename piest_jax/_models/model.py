@@ -17,9 +17,9 @@ State = Any
 class AbstractHysteresisModel(eqx.Module):
     """A model y = M[u] of one sampled input signal, with a state carried from sample to sample.
 
-    Subclasses provide `init_state`, `step` and `with_state`; `__call__`, `final_state` and
-    `inverse` follow from them unless a subclass has a faster or an exact form. Batch with
-    `jax.vmap`. Run sample by sample:
+    Subclasses provide `init_state`, `step` and `with_state`; `__call__` and `final_state` are
+    scans of `step` unless a subclass has a faster form, and `inverse` and `inverse_problem` say
+    there is no inverse unless it has one. Batch with `jax.vmap`. Run sample by sample:
 
         state = model.init_state(u[0])
         for ut in u:
