@@ -394,8 +394,8 @@ def _markdown(result, table) -> str:
     lines = [
         f"# piest fit: {result.record.source}",
         "",
-        f"{f.model().structure}, {f.n_plays} plays, {f.n_lags} lags; RMSE {float(f.rmse):.4g}; "
-        f"standard errors: {f.covariance_method}.",
+        f"{f.model().structure}, {f.n_plays} plays, {f.n_lags} lag{'' if f.n_lags == 1 else 's'}; "
+        f"RMSE {float(f.rmse):.4g}; standard errors: {f.covariance_method}.",
         "",
         table,
     ]
