@@ -185,4 +185,4 @@ def test_a_model_file_runs_as_it_is(tmp_path, capsys):
     code, _, err = _run(capsys, "--model", str(path), "--weights", "1,2,3", "--out", str(tmp_path / "b"))
     assert code == 2 and "--weights describes a PI operator" in err
     code, _, err = _run(capsys, "--model", str(path), "--dt", "0.01", "--out", str(tmp_path / "c"))
-    assert code == 2 and "give --dt 0.001" in err
+    assert code == 2 and "was identified at dt = 0.001; sample it every 0.001" in err

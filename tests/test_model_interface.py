@@ -135,7 +135,11 @@ def test_inverse_problems_are_named():
     assert "steady gain" in drifting.inverse_problem()
     u = drifting.inverse(np.full(50, 0.3))  # it exists sample by sample
     np.testing.assert_allclose(np.asarray(drifting(u)), 0.3, atol=1e-9)
-    assert "w_1 ... w_2 sum to -0.5" in pj.HysteresisModel(pj.PIOperator(R, [1.0, -1.5, 0.2])).inverse_problem()
-    assert "not 0" in pj.HysteresisModel(pj.PIOperator(R + 0.1, W)).inverse_problem()
+    signed = pj.HysteresisModel(pj.PIOperator(R, [1.0, -1.5, 0.2]))
+    assert "at i = 2 they are -0.5" in signed.inverse_problem()
+    assert "needs r_1 = 0" in pj.HysteresisModel(pj.PIOperator(R + 0.1, W)).inverse_problem()
+    # The same reason the operator's inverse gives when it refuses.
+    with pytest.raises(ValueError, match="at i = 2 they are -0.5"):
+        signed.pi.inverse()
     assert "negative entries" in pj.Preisach(R, [0.0, 1.0], [[1.0, -0.1], [0.2, 0.3], [0.1, 0.1]]).inverse_problem()
     assert models()["gpi"].inverse_problem() is None

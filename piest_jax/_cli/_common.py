@@ -3,6 +3,8 @@
 import argparse
 import sys
 
+import numpy as np
+
 
 class CLIError(Exception):
     """A problem with the user's request: printed as one line, exit code 2."""
@@ -137,6 +139,26 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
         help="of a record with a `segment` column (several loops or reversal curves), use the segment with this "
         "label (default: all of them, one after another in the file's order)",
     )
+
+
+def model_plays(model) -> int:
+    """How many plays a model file's model runs: its PI part's, or a Preisach model's."""
+    pi = getattr(model, "pi", None)
+    return pi.n_plays if pi is not None else model.shape[0]
+
+
+def check_creep_sampling(model, t, what: str) -> None:
+    """Refuse a signal `what` sampled at another interval than the one a model's creep was
+    identified at (its time constants count in that interval's samples)."""
+    creep = getattr(model, "creep", None)
+    if creep is None or len(t) < 2:
+        return
+    dt = float(np.median(np.diff(t)))
+    if not np.isclose(dt, creep.dt, rtol=1e-3):
+        raise CLIError(
+            f"{what} is sampled every {dt:g}, but the model's creep was identified at dt = {creep.dt:g}; "
+            f"sample it every {creep.dt:g}"
+        )
 
 
 def add_spike_option(p: argparse.ArgumentParser) -> None:

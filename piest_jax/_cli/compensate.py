@@ -6,12 +6,20 @@ import numpy as np
 
 from .._data.columns import base_name
 from .._data.record import load_columns
-from .._identification.compare import outside_range
+from .._identification.compare import max_rate, outside_range
 from .._identification.compensate import feedforward, started
 from .._identification.figures import compensation_figure
 from . import memory
 from . import output as _io
-from ._common import CLIError, add_output_options, columns_arg, finite_float, positive_float
+from ._common import (
+    CLIError,
+    add_output_options,
+    check_creep_sampling,
+    columns_arg,
+    finite_float,
+    model_plays,
+    positive_float,
+)
 
 NAME = "compensate"
 DESCRIPTION = """\
@@ -25,9 +33,9 @@ Writes
   DIR/compensate.csv    columns t, desired, u (the feedforward input) and model (the model's
                         output for u, equal to desired up to rounding)
   DIR/compensate.json   the model file, the plays' initial states used, the input's range and
-                        fastest rate (max_rate), the largest |model - desired|, and the model's fitted input range with
-                        the fraction of the input outside it (also noted on stderr; absent when
-                        the model file does not say)
+                        fastest rate (max_rate), the largest |model - desired|, and the model's
+                        fitted input range with the fraction of the input outside it (also
+                        noted on stderr; absent when the model file does not say)
   DIR/compensate.png    desired output and feedforward input over time, and u against desired
 A feedforward that leaves the model's fitted input range (fit.json's `input_range`) by more
 than 5% of its width, or that changes faster than --max-slew, is refused (exit 2, nothing
@@ -101,31 +109,20 @@ def load_desired(path, column, columns=None):
     return cols["t"], cols[col], col
 
 
-def n_plays(model) -> int:
-    """The number of plays a model file's model runs (its PI part's, or a Preisach model's)."""
-    pi = getattr(model, "pi", None)
-    return pi.n_plays if pi is not None else model.shape[0]
-
-
 def run(args) -> int:
-    from .._identification.model_file import load_model
+    from .._identification.model_file import model_from_keys, read_json
 
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
     if args.clip and args.extrapolate:
         raise CLIError("give either --clip or --extrapolate, not both")
-    model = load_model(args.model)
+    keys = read_json(args.model)
+    model = model_from_keys(keys, str(args.model))
+    limits = _limits(keys)
     if args.columns is not None and args.column is not None:
         raise CLIError("give either --column or --columns, not both")
     t, yd, col = load_desired(args.desired, args.column, args.columns)
-    creep = getattr(model, "creep", None)
-    if creep is not None and len(t) > 1:
-        dt = float(np.median(np.diff(t)))
-        if not np.isclose(dt, creep.dt, rtol=1e-3):
-            raise CLIError(
-                f"{args.desired}: sampled every {dt:g}, but the model's creep was "
-                f"identified at dt = {creep.dt:g}; resample the desired output"
-            )
-    n = n_plays(model)
+    check_creep_sampling(model, t, str(args.desired))
+    n = model_plays(model)
     memory.require(
         memory.stream_bytes(len(t), n),
         f"{args.model} ({n} plays) on {args.desired} ({len(t)} samples)",
@@ -133,79 +130,66 @@ def run(args) -> int:
     )
     x0 = None if args.initial_states is None else np.full(n, args.initial_states)
     try:
-        model = started(model, x0)
+        model = started(model, x0)  # the states its output below starts from, as the inverse's
         u = np.asarray(feedforward(model, yd))
     except ValueError as e:
         # The desired output was checked on reading: what is left is the model (not invertible).
         raise CLIError(f"{args.model}: {' '.join(str(e).split())}") from None
-    limits = _limits(args.model)
-    rate = _rate(t, u)
-    n_clipped = 0
+    summary: dict = {}
     if args.clip:
         if limits["range"] is None and args.max_slew is None:
             raise CLIError(f"{args.model}: states no fitted input range to clip to (give --max-slew, or a fit.json)")
-        limited = np.asarray(_limited(t, u, limits["range"], args.max_slew))
-        n_clipped = int(np.sum(limited != u))
-        u, rate = limited, _rate(t, limited)
-    elif args.max_slew is not None and rate > args.max_slew:
+        limited = _limited(t, u, limits["range"], args.max_slew)
+        summary["n_clipped"] = int(np.sum(limited != u))
+        u = limited
+    rate = max_rate(t, u)
+    if not args.clip and args.max_slew is not None and rate > args.max_slew:
         raise CLIError(
             f"{args.model}: the feedforward changes at up to {rate:.6g} per time unit, faster than "
             f"--max-slew {args.max_slew:.6g}; ask for a slower desired output, or pass --clip"
         )
-    seen = limits["rate"]
-    if seen is not None and rate > 1.05 * seen:
+    if limits["rate"] is not None and rate > 1.05 * limits["rate"]:
         print(
             f"piest compensate: note: the feedforward changes at up to {rate:.6g} per time unit, "
-            f"faster than anything in the record the model was fitted on ({seen:.6g}); --max-slew "
-            "bounds it",
+            f"faster than anything in the record the model was fitted on ({limits['rate']:.6g}); "
+            "--max-slew bounds it",
             file=sys.stderr,
         )
+    summary |= _outside(args.model, u, limits["range"], args.extrapolate)
     # The model's own run from the states the feedforward started from (a creep's lags at rest at
     # the first input unless the file states theirs).
     ym = np.asarray(model(u))
     problem = model.inverse_problem()
     if problem is not None:
         print(f"piest compensate: note: {args.model}: {problem}", file=sys.stderr)
-    states = getattr(getattr(model, "pi", model), "initial_states")
     # None: a Preisach model's plays at rest at the first input.
-    fields = {"column": col, "initial_states": None if states is None else np.asarray(states), "max_rate": rate}
-    if args.clip:
-        fields["n_clipped"] = n_clipped
-    if model.structure in ("gpi", "preisach"):
-        fields["structure"] = model.structure
-    return _write(args, out, t, yd, u, ym, fields)
-
-
-def _write(args, out, t, yd, u, ym, fields) -> int:
-    """compensate.csv, compensate.json (the model's `fields` among the summary) and the figure."""
-    outside = _outside(args.model, u, args.extrapolate)
+    states = getattr(getattr(model, "pi", model), "initial_states")
+    head = {"structure": model.structure} if model.structure in ("gpi", "preisach") else {}
     written = [_io.write_csv(out / "compensate.csv", {"t": t, "desired": yd, "u": u, "model": ym})]
     summary = {
         "model": str(args.model),
-        **{k: fields[k] for k in ("structure",) if k in fields},
+        **head,
         "desired": str(args.desired),
-        "column": fields["column"],
+        "column": col,
         "n_samples": len(t),
-        "initial_states": fields["initial_states"],
+        "initial_states": None if states is None else np.asarray(states),
         "u_min": float(u.min()),
         "u_max": float(u.max()),
         "max_model_error": float(np.max(np.abs(ym - yd))),
-        **{k: fields[k] for k in ("max_rate", "n_clipped") if k in fields},
-    } | outside
+        "max_rate": rate,
+        **summary,
+    }
     written.append(_io.write_json(out / "compensate.json", summary))
-    figure = compensation_figure(t, yd, u, input_range=_limits(args.model)["range"])
+    figure = compensation_figure(t, yd, u, input_range=limits["range"])
     written.append(_io.save_figure(figure, out / "compensate.png", dpi=110))
     for p in written:
         print(p)
     return 0
 
 
-def _limits(path) -> dict:
+def _limits(keys) -> dict:
     """The fitted input `range` (fit.json's `input_range`) and the fastest input `rate` of the
-    record it was fitted on (`input_max_rate`); None where the model file does not say."""
-    from .._identification.model_file import read_json
-
-    keys = read_json(path)
+    record it was fitted on (`input_max_rate`) in a model file's keys; None where it does not say."""
 
     def number(v):
         return isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
@@ -219,19 +203,16 @@ def _limits(path) -> dict:
     }
 
 
-def _rate(t, u) -> float:
-    """The fastest |du/dt| of a signal."""
-    return float(np.max(np.abs(np.diff(u) / np.diff(t)))) if len(u) > 1 else 0.0
-
-
-def _limited(t, u, rng, max_slew):
+def _limited(t, u, rng, max_slew) -> np.ndarray:
     """`u` held inside `rng` (lo, hi) and, sample by sample, to at most `max_slew` per time unit
     from the sample before (either None: no such limit)."""
     lo, hi = (-np.inf, np.inf) if rng is None else rng
+    if max_slew is None:
+        return np.clip(u, lo, hi)
     out = np.empty_like(u)
     prev = None
     for i, v in enumerate(u):
-        if prev is not None and max_slew is not None:
+        if prev is not None:
             step = max_slew * (t[i] - t[i - 1])
             v = min(max(v, prev - step), prev + step)
         out[i] = prev = min(max(v, lo), hi)
@@ -243,11 +224,10 @@ def _limited(t, u, rng, max_slew):
 RANGE_MARGIN = 0.05
 
 
-def _outside(path, u, extrapolate: bool) -> dict:
-    """The fitted input range (fit.json's `input_range`) and the fraction of the feedforward
-    input outside it; a note on stderr when there is any, a `CLIError` when the input leaves the
-    range by more than `RANGE_MARGIN` of its width and `extrapolate` is False."""
-    rng = _limits(path)["range"]
+def _outside(path, u, rng, extrapolate: bool) -> dict:
+    """The fitted input range `rng` and the fraction of the feedforward input outside it; a note
+    on stderr when there is any, a `CLIError` when the input leaves the range by more than
+    `RANGE_MARGIN` of its width and `extrapolate` is False."""
     if rng is None:
         return {}  # the model file does not say (not written by `piest fit`, or an older one)
     lo, hi = rng

@@ -11,6 +11,7 @@ from ._common import (
     CLIError,
     add_output_options,
     add_record_options,
+    check_creep_sampling,
     finite_float,
     float_list,
     positive_float,
@@ -165,35 +166,30 @@ def _operator(args):
 
 
 def _model(args):
-    """The model of --model, its PI part's operator (a Preisach model's plays as one with unit
-    weights) and its summary keys; refuses the operator options it would ignore."""
+    """The model of --model, refusing the operator options it would ignore."""
     from .._identification.model_file import load_model
 
     for name in ("thresholds", "plays", "r_max", "weights", "initial_states"):
         if getattr(args, name) is not None:
             raise CLIError(f"--{name.replace('_', '-')} describes a PI operator; --model runs {args.model} as it is")
-    model = load_model(args.model)
+    return load_model(args.model)
+
+
+def _plays(model, u0) -> PIOperator:
+    """The plays a model runs, as an operator (unit weights for a Preisach model's, started as the
+    model starts them on an input beginning at `u0`)."""
     pi = getattr(model, "pi", None)
-    if pi is None:  # a Preisach model: its plays have the half-widths as thresholds
-        x0 = 0.0 if model.initial_states is None else model.initial_states
-        pi = PIOperator(model.half_widths, np.ones(model.shape[0]), x0)
-    return model, pi, {"model": str(args.model), "structure": model.structure}
+    return pi if pi is not None else PIOperator(model.half_widths, np.ones(model.shape[0]), model.init_state(u0))
 
 
 def run(args) -> int:
     out = _io.check_outputs(args.out, OUTPUTS, args.force)
-    model = None
-    if args.model is not None:
-        model, op, keys = _model(args)
-    else:
-        op = _operator(args)
+    model = None if args.model is None else _model(args)
+    plain = _operator(args) if model is None else None
     t, u, desc = _input(args)
-    creep = getattr(model, "creep", None)
-    if creep is not None and len(t) > 1 and not np.isclose(float(np.median(np.diff(t))), creep.dt, rtol=1e-3):
-        raise CLIError(
-            f"the input is sampled every {float(np.median(np.diff(t))):g}, but the model's creep was "
-            f"identified at dt = {creep.dt:g}; give --dt {creep.dt:g}"
-        )
+    if model is not None:
+        check_creep_sampling(model, t, "the input")
+    op = plain if plain is not None else _plays(model, u[0])
     if len(t) * op.n_plays > MAX_VALUES:
         raise CLIError(
             f"{len(t)} samples x {op.n_plays} plays is more than the {MAX_VALUES:.0e} values "
@@ -202,9 +198,6 @@ def run(args) -> int:
     memory.require(
         memory.bank_bytes(len(t), op.n_plays), f"{len(t)} samples x {op.n_plays} plays", "use fewer plays or samples"
     )
-    if model is not None and getattr(model, "pi", None) is None and model.initial_states is None:
-        # A Preisach model's plays start relaxed at the first input.
-        op = PIOperator(op.thresholds, op.weights, u[0])
     H = np.asarray(op.regressor(u))
     y = np.asarray(op(u) if model is None else model(u))
     for name, v in (("input u", u), ("output y", y), ("play outputs", H)):
@@ -219,9 +212,12 @@ def run(args) -> int:
     cols = {"t": t, "u": u, "y": y} | {f"x_{j + 1}": H[:, j] for j in range(H.shape[1])}
     written = [_io.write_csv(out / "simulate.csv", cols)]
     written.append(_io.save_figure(loop_figure(t, u, y, H, op.thresholds), out / "loop.png", dpi=120))
-    operator = {"thresholds": op.thresholds, "weights": op.weights, "initial_states": op.initial_states}
+    if model is None:
+        about = {"thresholds": op.thresholds, "weights": op.weights, "initial_states": op.initial_states}
+    else:
+        about = {"model": str(args.model), "structure": model.structure}
     summary = {
-        **(operator if model is None else keys),
+        **about,
         "input": desc,
         "n_samples": len(t),
         "y_min": float(y.min()),

@@ -175,6 +175,12 @@ def outside_range(u, input_range) -> np.ndarray:
     return (u < lo) | (u > hi)
 
 
+def max_rate(t, u) -> float:
+    """The fastest |du/dt| of a sampled signal (0 for one sample)."""
+    u, t = np.asarray(u, np.float64), np.asarray(t, np.float64)
+    return float(np.max(np.abs(np.diff(u) / np.diff(t)))) if u.size > 1 else 0.0
+
+
 def extrapolation(u, identified_range, y, **predictions) -> tuple[float, dict]:
     """Where a second record's input leaves the input range a model was identified on.
 

@@ -14,7 +14,6 @@ i.e. what an engineer who ignores hysteresis but knows the gain and offset would
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax import lax
 from jaxtyping import Array
 
@@ -58,19 +57,6 @@ def _admissible(r: Array, x: Array) -> Array:
     return jnp.concatenate([x[:1], rest])
 
 
-def _check_range(c, desired) -> None:
-    """Name overflow of the desired output less the offset (the inverse checks its own range)."""
-    if not (_checks.is_concrete(c) and _checks.is_concrete(desired)):
-        return
-    with np.errstate(over="ignore", invalid="ignore"):
-        v = np.asarray(desired, np.float64) - float(c)
-    if not np.all(np.isfinite(v)):
-        raise ValueError(
-            f"the desired output less the offset {float(c):.3g} overflows float64; rescale the "
-            "model's and the data's units"
-        )
-
-
 def _as_model(model, offset) -> AbstractHysteresisModel:
     """The model to invert (`as_model`), with `offset` if given."""
     model = as_model(model)
@@ -111,11 +97,7 @@ def feedforward(
     generalized PI's desired output leaves the range it saturates at, or when a Preisach density
     is negative.
     """
-    m = started(model, initial_states, creep_states, offset=offset)
-    yd = _checks.finite(_checks.signal(desired, "desired"), "desired")
-    if isinstance(m, HysteresisModel):
-        _check_range(m.offset, yd)
-    return m.inverse(yd)
+    return started(model, initial_states, creep_states, offset=offset).inverse(desired)
 
 
 def started(model, initial_states=None, creep_states=None, *, offset=None) -> AbstractHysteresisModel:
@@ -125,9 +107,7 @@ def started(model, initial_states=None, creep_states=None, *, offset=None) -> Ab
     made admissible all the same)."""
     m = _as_model(model, offset)
     if creep_states is not None and not (isinstance(m, HysteresisModel) and m.creep is not None):
-        raise ValueError(
-            f"a {type(m).__name__} without creep has no separate offset or creep to override: give no `creep_states`"
-        )
+        raise ValueError(f"a {type(m).__name__} without creep has no lags whose `creep_states` could be set")
     if isinstance(m, HysteresisModel):
         x0 = m.pi.initial_states if initial_states is None else initial_states
         return m.with_initial_states(admissible_states(m.pi.thresholds, x0), creep_states)

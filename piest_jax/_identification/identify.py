@@ -23,7 +23,7 @@ from .._models.gpi import GeneralizedPI
 from .._models.preisach import Preisach
 from . import covariance as _cov
 from .band import PredictionBand, prediction_band
-from .compare import Comparison, compare, extrapolation
+from .compare import Comparison, compare, extrapolation, max_rate
 from .fit import PIFit, fit_pi
 from .fit_gpi import GPIFit
 from .fit_preisach import PreisachFit
@@ -616,11 +616,11 @@ def input_extent(record: Record, mask) -> dict:
     """fit.json's `input_half_range`, `input_range` (where the model has seen data: `piest
     compensate` refuses inputs far outside it), `input_max_rate` (the fastest |du/dt| in the
     record) and `n_fitted_samples`, for any fitted model."""
-    u, t = np.asarray(record.u, np.float64), np.asarray(record.t, np.float64)
+    u = np.asarray(record.u, np.float64)
     return {
         "input_half_range": 0.5 * float(np.ptp(u)),
         "input_range": [float(u.min()), float(u.max())],
-        "input_max_rate": float(np.max(np.abs(np.diff(u) / np.diff(t)))) if len(u) > 1 else 0.0,
+        "input_max_rate": max_rate(record.t, u),
         "n_fitted_samples": record.n_samples if mask is None else int(mask.sum()),
     }
 

@@ -184,8 +184,7 @@ def _no_booleans(d: dict, keys, source: str) -> None:
 
 
 def _pi_keys(model) -> dict:
-    if isinstance(model, PIFit):
-        model = model.model()
+    # `model_keys` has taken a fit's model already.
     if isinstance(model, PIOperator):
         model = HysteresisModel(model)
     return {

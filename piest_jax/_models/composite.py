@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
+from .._operators.inverse import inverse_problem
 from .._operators.pi import PIOperator
 from .._operators.play import play_step
 from .composite_inverse import creep_inverse
@@ -101,30 +102,24 @@ class HysteresisModel(AbstractHysteresisModel):
         return m.pi.final_states(u), None if m.creep is None else m.creep.final_states(u)
 
     def inverse_problem(self) -> str | None:
-        """Why the model has no stable inverse, or None: r_1 = 0 and positive cumulative weights
-        are needed, the lags' share of the present input counted with the first weight, and, for
-        an inverse that does not drift, the lags' steady gain counted with it too."""
-        r = np.asarray(self.pi.thresholds, np.float64)
+        """Why the model has no stable inverse, or None: the PI operator with the lags' share of
+        the present input added to its first weight must be invertible (`inverse_problem` of the
+        operators), and, for an inverse that does not drift, so must the one with the lags' steady
+        gain added."""
         w = np.asarray(self.pi.weights, np.float64)
-        if r[0] != 0:
-            return f"its smallest threshold is {r[0]:.6g}, not 0 (the identity play the inverse needs)"
         c = a = np.zeros(0)
         if self.creep is not None:
             c = np.asarray(self.creep.weights, np.float64)
             a = np.asarray(self.creep.decays, np.float64)
-        W = np.cumsum(w) + np.sum(c * (1 - a))
-        if np.any(W <= 0):
-            i = int(np.argmax(W <= 0))
-            share = " and the lags' share of the present input" if c.size else ""
-            return f"its weights w_1 ... w_{i + 1}{share} sum to {W[i]:.4g}, not a positive slope"
-        steady = np.cumsum(w) + np.sum(c)
-        if np.any(steady <= 0):
-            return (
+        first = np.eye(w.size)[0]
+        problem = inverse_problem(self.pi.thresholds, w + first * np.sum(c * (1 - a)))
+        if problem is None and inverse_problem(self.pi.thresholds, w + first * np.sum(c)) is not None:
+            problem = (
                 f"the creep's steady gain ({np.sum(c):.4g}) outweighs the first play's weight ({w[0]:.4g}), "
                 "so the static map falls where only that play moves and the feedforward drifts on "
                 "slow targets"
             )
-        return None
+        return problem
 
     def inverse(self, desired: SignalLike, state=None) -> Signal:
         """The input (T,) whose output follows `desired` (T,), from `state` (default the model's
@@ -136,6 +131,14 @@ class HysteresisModel(AbstractHysteresisModel):
         """
         yd = _checks.finite(_checks.signal(desired, "desired"), "desired")
         m = self if state is None else self.with_state(state)
+        if _checks.is_concrete(m.offset) and _checks.is_concrete(yd):
+            with np.errstate(over="ignore", invalid="ignore"):
+                finite = np.all(np.isfinite(np.asarray(yd, np.float64) - float(m.offset)))
+            if not finite:
+                raise ValueError(
+                    f"the desired output less the offset {float(m.offset):.3g} overflows float64; rescale the "
+                    "model's and the data's units"
+                )
         v = yd - m.offset
         if m.creep is None:
             return m.pi.inverse()(v)

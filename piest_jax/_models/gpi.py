@@ -35,6 +35,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .. import _checks
 from .._custom_types import Scalar, Signal, SignalLike
+from .._operators.inverse import inverse_problem
 from .._operators.pi import PIOperator
 from .._operators.play import play_step
 from .model import AbstractHysteresisModel
@@ -212,16 +213,9 @@ class GeneralizedPI(AbstractHysteresisModel):
         return GeneralizedPI(pi, self.amplitudes, self.centres * lam, self.scales * lam, self.offset)
 
     def inverse_problem(self) -> str | None:
-        """Why the model has no inverse (its PI part's r_1 != 0 or a cumulative weight <= 0), or
-        None."""
-        r = np.asarray(self.pi.thresholds, np.float64)
-        W = np.cumsum(np.asarray(self.pi.weights, np.float64))
-        if r[0] != 0:
-            return f"its smallest threshold is {r[0]:.6g}, not 0 (the identity play the inverse needs)"
-        if np.any(W <= 0):
-            i = int(np.argmax(W <= 0))
-            return f"its cumulative weight w_1 + ... + w_{i + 1} is {W[i]:.4g}, not positive"
-        return None
+        """Why the model has no inverse (its PI part has none: `inverse_problem` of the
+        operators), or None."""
+        return inverse_problem(self.pi.thresholds, self.pi.weights)
 
     def inverse(self, y: SignalLike, state=None, *, n_iter: int = 80) -> Signal:
         """The input u (T,) whose output follows `y` (T,): u = P⁻¹[g⁻¹(y)], the compensator.

@@ -22,21 +22,28 @@ import numpy as np
 from .. import _checks
 
 
+def inverse_problem(thresholds, weights) -> str | None:
+    """Why a PI operator with these (concrete) thresholds and weights has no analytic inverse,
+    or None: it needs r_1 = 0 and every cumulative weight w_1 + ... + w_i positive."""
+    r = np.asarray(thresholds, np.float64)
+    W = np.cumsum(np.asarray(weights, np.float64))
+    if r[0] != 0:
+        return f"the analytic inverse needs r_1 = 0 (a play with zero threshold); the smallest threshold is {r[0]:.6g}"
+    if np.any(W <= 0):
+        i = int(np.argmax(W <= 0))
+        return (
+            "the PI operator is not invertible: the cumulative weights w_1 + ... + w_i must "
+            f"stay positive, but at i = {i + 1} they are {W[i]:.6g}"
+        )
+    return None
+
+
 def _cumulative_weights(r, w):
     W = jnp.cumsum(w)
     if _checks.is_concrete(W) and _checks.is_concrete(r):
-        Wn = np.asarray(W)
-        if np.asarray(r)[0] != 0:
-            raise ValueError(
-                "the analytic inverse needs r_1 = 0 (a play with zero threshold); "
-                f"the smallest threshold is {float(r[0]):.6g}"
-            )
-        if np.any(Wn <= 0):
-            i = int(np.argmax(Wn <= 0))
-            raise ValueError(
-                "the PI operator is not invertible: the cumulative weights w_1 + ... + w_i must "
-                f"stay positive, but at i = {i + 1} they are {Wn[i]:.6g}"
-            )
+        problem = inverse_problem(r, w)
+        if problem is not None:
+            raise ValueError(problem)
         return W
     bad = (r[0] != 0) | jnp.any(W <= 0)
     return eqx.error_if(W, bad, "the PI operator is not invertible: need r_1 = 0 and cumulative weights > 0")
